@@ -1,0 +1,180 @@
+"""Throughput of one simulation step: a 3D dam break at several grid sizes, per pipeline stage.
+
+    /work/venv/bin/python benchmarks/throughput.py                  # N = 32 and 64 on the CPU
+    /work/venv/bin/python benchmarks/throughput.py --sizes 32 --steps 5 --device cuda:0 --label h100
+
+Scene per size N: domain [1, 1, 1] m in N^3 cells (cell_size 1/N), free-slip walls, a water box
+x in [0, 0.4], y in [0, 0.625], full z (1/4 of the domain) against the x_min wall.
+
+The first --warmup steps are untimed and reported apart: the first of them loads Warp's kernels
+from the kernel cache or compiles them (--cold-cache forces a compile into an empty cache). Then
+the stage timer and solver statistics are reset and --steps steps of dt = sim.stable_dt() are
+timed. Prints a Markdown table and writes benchmarks/results/throughput_<label>.{json,md}
+(label: --label, default the device alias without ':').
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shlex
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import warp as wp
+
+from warp_mpm_bubbles import Box, Domain, Material, Scene, SolverSettings
+from warp_mpm_bubbles.simulation import Simulation, SolverStats
+from warp_mpm_bubbles.timing import StageTimer
+
+WATER_MAX = (0.4, 0.625, 1.0)  # water box corner; the other corner is the origin
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def dam_break(n: int, ppc: int) -> Scene:
+    return Scene(
+        name=f"dam_break_{n}",
+        domain=Domain(size=(1.0, 1.0, 1.0), cell_size=1.0 / n, walls="free_slip"),
+        materials={"water": Material(name="water")},
+        shapes=[Box(material="water", min=(0.0, 0.0, 0.0), max=WATER_MAX)],
+        solver=SolverSettings(particles_per_cell=ppc),
+    )
+
+
+def device_description(dev) -> str:
+    if dev.is_cuda:
+        return f"{dev.alias} ({dev.name})"
+    model = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{dev.alias} ({model}, {os.cpu_count()} cores)"
+
+
+def run_size(n: int, args, dev) -> dict:
+    t0 = time.perf_counter()
+    sim = Simulation(dam_break(n, args.ppc), device=dev)
+    setup = time.perf_counter() - t0
+
+    t0, first = time.perf_counter(), 0.0
+    for i in range(args.warmup):
+        sim.step(sim.stable_dt())
+        wp.synchronize_device(dev)
+        first = first or time.perf_counter() - t0  # the first step compiles or loads the kernels
+    warmup = time.perf_counter() - t0
+
+    sim.timer, sim.stats = StageTimer(sim.device), SolverStats()
+    t0 = time.perf_counter()
+    for _ in range(args.steps):
+        sim.step(sim.stable_dt())
+    wp.synchronize_device(dev)
+    wall = time.perf_counter() - t0
+
+    p, s, st = sim.num_particles, args.steps, sim.stats
+    return {
+        "n": n,
+        "cells": list(sim.grid.interior),
+        "num_cells": sim.grid.interior[0] * sim.grid.interior[1] * sim.grid.interior[2],
+        "particles": p,
+        "steps": s,
+        "setup_seconds": setup,
+        "warmup_steps": args.warmup,
+        "first_step_seconds": first,
+        "warmup_seconds": warmup,
+        "wall_seconds": wall,
+        "seconds_per_step": wall / s,
+        "particle_steps_per_second": p * s / wall,
+        "stages": {k: {"seconds_per_step": t / s, "particle_steps_per_second": p * s / t}
+                   for k, t in sim.timer.seconds.items()},
+        "cg_solves": st.cg_solves,
+        "cg_iterations_mean": st.cg_iterations / max(st.cg_solves, 1),
+        "cg_iterations_max": st.cg_max_iterations,
+        "cg_unconverged": st.cg_unconverged,
+        "dt_mean": sum(st.dt_history) / max(len(st.dt_history), 1),
+    }
+
+
+def markdown(meta: dict, rows: list[dict]) -> str:
+    stages = list(dict.fromkeys(k for r in rows for k in r["stages"]))
+    out = [f"# Throughput: 3D dam break on {meta['device']}", "",
+           f"- date: {meta['date']}", f"- warp {meta['warp_version']}, python {meta['python']}",
+           f"- command: `{meta['command']}`",
+           f"- scene: {meta['scene']}", f"- {meta['ppc']} particles per cell, {meta['warmup']} warm-up steps "
+           f"(kernel cache: {meta['kernel_cache']}) then {meta['steps']} timed steps of dt = stable_dt()", ""]
+    table = [["grid"] + [f"{r['n']}^3 ({r['num_cells']:,} cells)" for r in rows],
+             ["particles"] + [f"{r['particles']:,}" for r in rows],
+             ["setup / first step / all warm-up (s)"] + [
+                 f"{r['setup_seconds']:.2f} / {r['first_step_seconds']:.2f} / {r['warmup_seconds']:.2f}" for r in rows],
+             ["timed steps"] + [str(r["steps"]) for r in rows],
+             ["**wall s / step**"] + [f"**{r['seconds_per_step'] * 1e3:.1f} ms**" for r in rows],
+             ["**particle-steps / s**"] + [f"**{r['particle_steps_per_second']:.3g}**" for r in rows]]
+    for k in stages:
+        table.append([f"{k}: ms / step (particle-steps/s)"] + [
+            f"{r['stages'][k]['seconds_per_step'] * 1e3:.1f} ({r['stages'][k]['particle_steps_per_second']:.3g})"
+            if k in r["stages"] else "-" for r in rows])
+    table.append(["CG iterations / solve: mean, max"] + [
+        f"{r['cg_iterations_mean']:.1f}, {r['cg_iterations_max']}"
+        + (f" ({r['cg_unconverged']} unconverged)" if r["cg_unconverged"] else "") for r in rows])
+    table.append(["mean dt (ms)"] + [f"{r['dt_mean'] * 1e3:.3f}" for r in rows])
+    out.append("| " + " | ".join(table[0]) + " |")
+    out.append("|" + "---|" + "---:|" * len(rows))
+    out += ["| " + " | ".join(line) + " |" for line in table[1:]]
+    return "\n".join(out) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default="32,64", help="comma-separated N for N^3 cells (default 32,64)")
+    ap.add_argument("--ppc", type=int, default=8, help="particles per cell (default 8)")
+    ap.add_argument("--steps", type=int, default=20, help="timed steps per size (default 20)")
+    ap.add_argument("--warmup", type=int, default=3, help="untimed steps first, compile included (default 3)")
+    ap.add_argument("--device", default="cpu", help='Warp device, e.g. "cpu", "cuda:0" (default cpu)')
+    ap.add_argument("--cold-cache", action="store_true",
+                    help="use an empty temporary kernel cache, so the warm-up includes the full compile")
+    ap.add_argument("--label", default=None, help="result file name: throughput_<label>.* (default: device)")
+    args = ap.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    if args.steps < 1 or args.warmup < 0 or not sizes:
+        ap.error("need --steps >= 1, --warmup >= 0 and at least one size")
+
+    if args.cold_cache:
+        wp.config.kernel_cache_dir = tempfile.mkdtemp(prefix="warp_cache_")
+    wp.init()
+    dev = wp.get_device(args.device)
+    meta = {
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "warp_version": wp.config.version, "python": platform.python_version(),
+        "device": device_description(dev), "device_alias": dev.alias, "device_name": dev.name,
+        "cpu_cores": os.cpu_count(),
+        "kernel_cache": ("cold: compiled into " if args.cold_cache else "as found: ") + wp.config.kernel_cache_dir,
+        "command": shlex.join([Path(sys.executable).name, *sys.argv]) if argv is None else shlex.join(argv),
+        "scene": f"domain [1, 1, 1] m, free-slip walls, water box [0, 0, 0] .. {list(WATER_MAX)}",
+        "ppc": args.ppc, "warmup": args.warmup, "steps": args.steps,
+    }
+    rows = []
+    for n in sizes:
+        print(f"N = {n}: running {args.warmup} warm-up + {args.steps} timed steps ...", file=sys.stderr, flush=True)
+        rows.append(run_size(n, args, dev))
+    text = markdown(meta, rows)
+    print(text)
+
+    label = (args.label or dev.alias).replace(":", "").replace("/", "_")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"throughput_{label}.md").write_text(text)
+    (RESULTS / f"throughput_{label}.json").write_text(json.dumps({**meta, "results": rows}, indent=2) + "\n")
+    if args.cold_cache:
+        shutil.rmtree(wp.config.kernel_cache_dir, ignore_errors=True)
+    print(f"wrote {RESULTS / f'throughput_{label}'}.{{md,json}}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,69 @@
+"""Command line: `warp-mpm-bubbles run SCENE.toml` and `warp-mpm-bubbles check SCENE.toml`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .scene import SceneError, load_scene
+
+
+def add_run_overrides(parser: argparse.ArgumentParser):
+    """The flags every example and `run` share (Warp's and Newton's example convention)."""
+    parser.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s)')
+    parser.add_argument("--num-frames", type=int, default=None, help="frames to simulate (overrides the scene)")
+    parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+
+
+def scene_with_overrides(path, args) -> "object":
+    """Load and validate a scene, applying --stage-path and --num-frames; raises SceneError."""
+    scene = load_scene(path)
+    if args.num_frames is not None or args.stage_path is not None:
+        scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
+    return scene.validate()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="warp-mpm-bubbles", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    run_p = sub.add_parser("run", help="simulate a scene and write its USD animation")
+    run_p.add_argument("scene", help="scene file (.toml)")
+    add_run_overrides(run_p)
+    check_p = sub.add_parser("check", help="validate a scene file without simulating")
+    check_p.add_argument("scene", help="scene file (.toml)")
+    args = parser.parse_args(argv)
+
+    try:
+        if args.command == "check":
+            return _check(args.scene)
+        scene = scene_with_overrides(args.scene, args)
+    except SceneError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+    import warp as wp  # deferred: `check` and bad scenes never start Warp
+
+    wp.config.quiet = True
+    from .runner import run_scene
+
+    run_scene(scene, device=args.device, progress=not args.quiet)
+    return 0
+
+
+def _check(path) -> int:
+    from .seeding import seed_particles
+
+    scene = load_scene(path).validate()
+    seeds = seed_particles(scene)
+    d = scene.domain
+    print(f"{path}: OK")
+    print(f"  {d.dim}D domain {' x '.join(f'{s:g}' for s in d.size)} m, cells {d.cells[:d.dim]}, dx {d.cell_size:g} m")
+    print(f"  materials: {', '.join(f'{m.name} ({m.kind}, {m.density:g} kg/m^3)' for m in scene.materials.values())}")
+    print(f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles")
+    print(f"  output: {scene.output.path}, {scene.output.frames} frames at {scene.output.fps:g} fps ({scene.output.format})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""Run a scene to a USD file: the frame loop, the progress bar and the closing summary.
+
+Shared by the command line (`warp-mpm-bubbles run`) and the example scripts.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+from .simulation import Simulation
+from .usd_output import StageWriter
+
+
+@dataclass
+class RunResult:
+    simulation: Simulation
+    stage_path: str
+    frames_written: int
+    wall_seconds: float
+
+
+class ProgressBar:
+    """One line redrawn in place on a terminal; on a log (CI, a file) a line every 10% of the run."""
+
+    def __init__(self, total: int, stream=sys.stderr, width: int = 28):
+        self.total, self.stream, self.width = total, stream, width
+        self.start = time.perf_counter()
+        self.tty = stream.isatty()
+        self._last_decile = -1
+
+    def update(self, done: int, sim_time: float, steps: int):
+        elapsed = time.perf_counter() - self.start
+        eta = elapsed / done * (self.total - done) if done else 0.0
+        filled = int(self.width * done / self.total)
+        line = (f"frame {done:>4}/{self.total} [{'#' * filled}{'.' * (self.width - filled)}] "
+                f"t={sim_time:.3f}s steps={steps} elapsed {_clock(elapsed)} ETA {_clock(eta)}")
+        if self.tty:
+            self.stream.write("\r" + line + ("\n" if done == self.total else ""))
+        elif done * 10 // self.total != self._last_decile or done == self.total:
+            self._last_decile = done * 10 // self.total
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(round(seconds)), 60)
+    return f"{m}m{s:02d}s" if m else f"{s}s"
+
+
+def run_scene(scene, *, device=None, progress: bool = True, log=sys.stderr) -> RunResult:
+    """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path."""
+    start = time.perf_counter()
+    sim = Simulation(scene, device=device)
+    out = scene.output
+    materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
+    bar = ProgressBar(out.frames, stream=log) if progress else None
+    with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
+                     format=out.format, up_axis=out.up_axis) as writer:
+        _write(sim, writer)
+        for _ in range(out.frames):
+            sim.advance_frame()
+            _write(sim, writer)
+            if bar:
+                bar.update(sim.frame, sim.time, sim.stats.steps)
+    result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
+    if progress:
+        log.write(summary(result) + "\n")
+    return result
+
+
+def _write(sim: Simulation, writer: StageWriter):
+    with sim.timer("output"):
+        p = sim.particles_numpy()
+        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"])
+
+
+def summary(result: RunResult) -> str:
+    """Seconds per stage, CG effort, particles and steps: what the run cost and where."""
+    sim = result.simulation
+    st, timer = sim.stats, sim.timer
+    lines = [
+        f"{sim.scene.name}: {result.frames_written} frames to {result.stage_path}, "
+        f"{sim.time:.3f} s simulated in {st.steps} steps, {sim.num_particles:,} particles, "
+        f"{sim.grid.dim}D {'x'.join(map(str, sim.grid.interior[:sim.grid.dim]))} cells, device {sim.device}",
+        f"  {'stage':<10}{'seconds':>10}{'share':>8}{'ms/step':>10}",
+    ]
+    total = timer.total
+    for stage, seconds in timer.seconds.items():
+        per_step = 1e3 * seconds / max(st.steps, 1)
+        lines.append(f"  {stage:<10}{seconds:>10.2f}{100 * seconds / total:>7.0f}%{per_step:>10.2f}")
+    lines.append(f"  {'total':<10}{total:>10.2f}   (wall {result.wall_seconds:.2f} s incl. setup and compile)")
+    mean = st.cg_iterations / max(st.cg_solves, 1)
+    lines.append(f"  pressure CG: {st.cg_iterations:,} iterations over {st.cg_solves} solves "
+                 f"(mean {mean:.1f}, max {st.cg_max_iterations}), worst residual {st.cg_worst_residual:.1e}"
+                 + (f", {st.cg_unconverged} solves hit the iteration cap" if st.cg_unconverged else ""))
+    lines.append(f"  stages run: {', '.join(timer.stages_run)}")
+    return "\n".join(lines)

@@ -1,0 +1,536 @@
+"""Scenes as data: a TOML file and the Python API build the same dataclasses.
+
+Everything goes through `Scene.validate`, which refuses bad input with ONE
+`SceneError` naming the file, the key path (`[shapes.1].radius`), the value
+given and what is allowed, before any simulation work starts.
+"""
+from __future__ import annotations
+
+import copy
+import difflib
+import math
+import numbers
+import operator
+import os
+from dataclasses import dataclass, field, fields, MISSING
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
+from .seeding import shape_seeds_particles
+
+WALL_TYPES = ("no_slip", "free_slip", "open")
+WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+MATERIAL_KINDS = ("liquid",)  # add "gas", "foam" here when the solver supports them
+PRECONDITIONERS = ("jacobi", "none")
+OUTPUT_FORMATS = ("instancer", "points", "both")
+UP_AXES = ("Y", "Z")
+USD_SUFFIXES = (".usd", ".usdc", ".usda")
+AXES = ("x", "y", "z")
+_LIMITS = (("gt", ">", operator.gt), ("ge", ">=", operator.ge), ("lt", "<", operator.lt), ("le", "<=", operator.le))
+
+
+class SceneError(ValueError):
+    """A scene was refused; the message names the file, key path, value and the fix."""
+
+    def __init__(self, message: str, key: str = "", value=None, allowed: str = ""):
+        super().__init__(message)
+        self.key, self.value, self.allowed = key, value, allowed
+
+
+def _fmt(v) -> str:
+    """A value as the user wrote it (repr keeps 1000.0 and 'text' recognisable)."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, np.generic):
+        v = v.item()
+    return repr(v)
+
+
+def _g(v) -> str:
+    """A computed number or vector, short."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_g(x) for x in v) + "]"
+    return f"{float(v):.10g}"
+
+
+def _did_you_mean(word, options) -> str:
+    match = difflib.get_close_matches(str(word), [str(o) for o in options], n=1)
+    return f" (did you mean '{match[0]}'?)" if match else ""
+
+
+class _Checker:
+    """Type and range checks; each failure raises one SceneError prefixed with the source."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, key, value, allowed, shown=None):
+        shown = _fmt(value) if shown is None else shown
+        raise SceneError(f"{self.source}: {key} = {shown}: {allowed}", key, value, allowed)
+
+    def missing(self, key, allowed):
+        raise SceneError(f"{self.source}: missing required key {key}; {allowed}", key, None, allowed)
+
+    def unknown_keys(self, table, d, allowed):
+        for k, v in d.items():
+            if k not in allowed:
+                key = f"{table}.{k}" if table else str(k)
+                hint = f"allowed keys: {', '.join(allowed)}{_did_you_mean(k, allowed)}"
+                raise SceneError(f"{self.source}: unknown key {key} = {_fmt(v)}; {hint}", key, v, hint)
+
+    def table(self, key, v):
+        if not isinstance(v, dict):
+            self.fail(key, v, "expected a table (key = value pairs)")
+        return v
+
+    def number(self, key, v, whole=False, **limits):
+        """A finite float (an int when `whole`) within the given limits gt, ge, lt, le."""
+        bounds = [f"{op} {_g(limits[name])}" for name, op, _ in _LIMITS if name in limits]
+        allowed = ("a whole number" if whole else "a finite number") + "".join(
+            f" {'and ' if i else ''}{b}" for i, b in enumerate(bounds))
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):  # bool is an int subclass
+            self.fail(key, v, f"expected {allowed}, got {type(v).__name__}")
+        if not math.isfinite(v) or (whole and not float(v).is_integer()):
+            self.fail(key, v, f"must be {allowed}")
+        x = int(v) if whole else float(v)
+        if not all(test(x, limits[name]) for name, _, test in _LIMITS if name in limits):
+            self.fail(key, v, f"must be {allowed}")
+        return x
+
+    def vector(self, key, v, n, why="", **limits):
+        if isinstance(v, (str, bytes)) or not isinstance(v, (list, tuple, np.ndarray)) or len(v) != n:
+            self.fail(key, v, f"expected a list of {n} numbers{why}")
+        return tuple(self.number(f"{key}[{i}]", x, **limits) for i, x in enumerate(v))
+
+    def choice(self, key, v, options):
+        if not isinstance(v, str) or v not in options:
+            allowed = "one of " + ", ".join(f"'{o}'" for o in options)
+            self.fail(key, v, f"expected {allowed}{_did_you_mean(v, options)}")
+        return v
+
+    def instance(self, key, v, cls, what):
+        if not isinstance(v, cls):
+            self.fail(key, v, f"expected {what}")
+        return v
+
+
+def _dim_why(dim):
+    return f" (the scene is {dim}D: [domain].size has {dim} entries)"
+
+
+@dataclass
+class Domain:
+    size: tuple[float, ...]
+    cell_size: float
+    gravity: tuple[float, ...] | None = None
+    walls: dict[str, str] | str = "free_slip"
+
+    @property
+    def dim(self) -> int:
+        return len(self.size)
+
+    @property
+    def cells(self) -> tuple[int, int, int]:
+        n = tuple(int(round(s / self.cell_size)) for s in self.size)
+        return n if len(n) == 3 else (*n, 1)
+
+    @property
+    def wall_types(self) -> tuple[int, ...]:
+        walls = self.walls if isinstance(self.walls, dict) else dict.fromkeys(WALL_KEYS, self.walls)
+        # a 2D run is one cell thick in z; its z faces behave as free slip
+        return tuple(WALL_TYPES.index(walls.get(k, "free_slip") if k[0] != "z" or self.dim == 3 else "free_slip")
+                     for k in WALL_KEYS)
+
+    def _validate(self, c: _Checker):
+        t = "[domain]"
+        if isinstance(self.size, (str, bytes)) or not isinstance(self.size, (list, tuple, np.ndarray)) \
+                or len(self.size) not in (2, 3):
+            c.fail(f"{t}.size", self.size, "expected 2 numbers (2D run) or 3 numbers (3D run), each > 0")
+        self.size = c.vector(f"{t}.size", self.size, len(self.size), gt=0)
+        h = self.cell_size = c.number(f"{t}.cell_size", self.cell_size, gt=0)
+        dim = self.dim
+        for a, s in enumerate(self.size):
+            n = s / h
+            if abs(n - round(n)) > 1e-6 * n:
+                fits = " or ".join(f"{m * h:.10g} ({m} cells)" for m in (math.floor(n), math.ceil(n)) if m >= 1)
+                c.fail(f"{t}.size", self.size,
+                       f"{AXES[a]} = {_g(s)} is {n:.6g} cells of cell_size {_g(h)}, not a whole number; "
+                       f"use {AXES[a]} = {fits}, or a cell_size that divides it")
+            if round(n) < 4:
+                c.fail(f"{t}.size", self.size,
+                       f"{AXES[a]} = {_g(s)} gives only {round(n)} cells of cell_size {_g(h)}; at least 4 "
+                       f"are needed: enlarge [domain].size or reduce [domain].cell_size")
+        if self.gravity is None:
+            self.gravity = (0.0, -9.81, 0.0)[:dim]
+        self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, _dim_why(dim))
+        self.walls = self._resolve_walls(c, dim)
+
+    def _resolve_walls(self, c, dim):
+        keys = WALL_KEYS[: 2 * dim]
+        if isinstance(self.walls, str):
+            return dict.fromkeys(keys, c.choice("[domain].walls", self.walls, WALL_TYPES))
+        if not isinstance(self.walls, dict):
+            c.fail("[domain].walls", self.walls,
+                   f"expected a wall type ({', '.join(WALL_TYPES)}) or a table like {{ x_min = \"no_slip\" }}")
+        for k, v in self.walls.items():
+            if dim == 2 and k in WALL_KEYS[4:]:
+                c.fail(f"[domain].walls.{k}", v, "z walls exist only in 3D scenes ([domain].size has 2 "
+                                                 f"entries); allowed keys: {', '.join(keys)}")
+        c.unknown_keys("[domain].walls", self.walls, keys)
+        return {k: c.choice(f"[domain].walls.{k}", self.walls.get(k, "free_slip"), WALL_TYPES) for k in keys}
+
+
+@dataclass
+class Material:
+    name: str
+    kind: str = "liquid"
+    density: float = 1000.0
+    color: tuple[float, float, float] = (0.2, 0.45, 0.9)
+
+    def _validate(self, c: _Checker, key):
+        t = f"[materials.{key}]"
+        if self.name != key:
+            c.fail(f"{t}.name", self.name, f"must equal its key '{key}' in Scene.materials")
+        self.kind = c.choice(f"{t}.kind", self.kind, MATERIAL_KINDS)
+        self.density = c.number(f"{t}.density", self.density, gt=0)
+        self.color = c.vector(f"{t}.color", self.color, 3, " (red, green, blue)", ge=0, le=1)
+
+
+class _Shape:
+    """Behaviour shared by the shape dataclasses (which keep their own field order)."""
+
+    type_name: ClassVar[str]
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        dim = len(self.bounds()[0])
+        return self._contains(np.asarray(points)[:, :dim])  # 2D shapes ignore a z column
+
+    def describe(self) -> str:
+        parts = [f"{f.name}={_fmt(getattr(self, f.name))}" for f in fields(self)
+                 if f.name not in ("material", "velocity")]
+        return f"{self.type_name} " + " ".join(parts)
+
+    def _validate(self, c: _Checker, key, scene: Scene):
+        dim, mats = scene.dim, scene.materials
+        if not isinstance(self.material, str) or self.material not in mats:
+            c.fail(f"{key}.material", self.material,
+                   f"no such material; defined materials: {', '.join(mats)}{_did_you_mean(self.material, mats)}")
+        self._validate_geometry(c, key, scene.domain)
+        self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
+        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, _dim_why(dim))
+        lo, hi = self.bounds()
+        size = np.array(scene.domain.size)
+        if (lo < -1e-9 * size).any() or (hi > size * (1 + 1e-9)).any():
+            c.fail(key, self, f"its bounds {_g(lo)} .. {_g(hi)} are not inside the domain {_g(0 * size)} .. "
+                              f"{_g(size)}; move or shrink the shape, or enlarge [domain].size",
+                   shown=self.describe())
+
+
+@dataclass
+class Box(_Shape):
+    material: str
+    min: tuple
+    max: tuple
+    velocity: tuple | None = None
+    type_name: ClassVar[str] = "box"
+
+    def bounds(self):
+        return np.array(self.min, float), np.array(self.max, float)
+
+    def _contains(self, p):
+        return np.all((p >= np.array(self.min)) & (p <= np.array(self.max)), axis=1)
+
+    def _validate_geometry(self, c, key, domain):
+        why = _dim_why(domain.dim)
+        self.min = c.vector(f"{key}.min", self.min, domain.dim, why)
+        self.max = c.vector(f"{key}.max", self.max, domain.dim, why)
+        for a, (lo, hi) in enumerate(zip(self.min, self.max)):
+            if lo >= hi:
+                c.fail(f"{key}.min", self.min, f"must be < {key}.max = {_fmt(self.max)} on every axis "
+                                               f"(not on {AXES[a]}: {_g(lo)} >= {_g(hi)})")
+
+
+@dataclass
+class Sphere(_Shape):
+    material: str
+    center: tuple
+    radius: float
+    velocity: tuple | None = None
+    type_name: ClassVar[str] = "sphere"
+
+    def bounds(self):
+        c = np.array(self.center, float)
+        return c - self.radius, c + self.radius
+
+    def _contains(self, p):
+        return np.sum((p - np.array(self.center)) ** 2, axis=1) <= self.radius ** 2
+
+    def _validate_geometry(self, c, key, domain):
+        self.center = c.vector(f"{key}.center", self.center, domain.dim, _dim_why(domain.dim))
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+
+
+@dataclass
+class Cylinder(_Shape):
+    material: str
+    center: tuple
+    radius: float
+    axis: str = "z"
+    length: float | None = None
+    velocity: tuple | None = None
+    type_name: ClassVar[str] = "cylinder"
+
+    def bounds(self):
+        c, a = np.array(self.center, float), AXES.index(self.axis)
+        half = np.full(len(c), float(self.radius))
+        if a < len(c):  # a 2D cylinder along z is a disk: no extent along its axis
+            half[a] = 0.5 * self.length
+        return c - half, c + half
+
+    def _contains(self, p):
+        c, a = np.array(self.center), AXES.index(self.axis)
+        radial = [i for i in range(len(c)) if i != a]
+        inside = np.sum((p[:, radial] - c[radial]) ** 2, axis=1) <= self.radius ** 2
+        if a < len(c):
+            inside &= np.abs(p[:, a] - c[a]) <= 0.5 * self.length
+        return inside
+
+    def _validate_geometry(self, c, key, domain):
+        self.center = c.vector(f"{key}.center", self.center, domain.dim, _dim_why(domain.dim))
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+        self.axis = c.choice(f"{key}.axis", self.axis, AXES)
+        a = AXES.index(self.axis)
+        if self.length is None:
+            if a < domain.dim:  # span the whole domain: centre it along the axis
+                self.length = domain.size[a]
+                self.center = tuple(domain.size[a] / 2 if i == a else x for i, x in enumerate(self.center))
+            else:  # 2D disk: the length is the one-cell slab thickness (unused)
+                self.length = domain.cell_size
+        self.length = c.number(f"{key}.length", self.length, gt=0)
+
+
+SHAPE_TYPES = {cls.type_name: cls for cls in (Box, Sphere, Cylinder)}
+
+
+@dataclass
+class SolverSettings:
+    particles_per_cell: int | None = None
+    cfl: float = 0.5
+    max_dt: float | None = None
+    cg_tolerance: float = 1e-5
+    cg_max_iterations: int = 2000
+    preconditioner: str = "jacobi"
+    volume_correction: float = 0.3  # share of a cell's over-fill (beyond seeding noise) undone per step
+    seed: int = 0
+
+    def _validate(self, c: _Checker, dim):
+        t = "[solver]"
+        if self.particles_per_cell is None:
+            self.particles_per_cell = 4 if dim == 2 else 8
+        self.particles_per_cell = c.number(f"{t}.particles_per_cell", self.particles_per_cell,
+                                           ge=1, le=64, whole=True)
+        self.cfl = c.number(f"{t}.cfl", self.cfl, gt=0, le=2)
+        if self.max_dt is not None:
+            self.max_dt = c.number(f"{t}.max_dt", self.max_dt, gt=0)
+        self.cg_tolerance = c.number(f"{t}.cg_tolerance", self.cg_tolerance, gt=0, lt=1)
+        self.cg_max_iterations = c.number(f"{t}.cg_max_iterations", self.cg_max_iterations, ge=1, whole=True)
+        self.preconditioner = c.choice(f"{t}.preconditioner", self.preconditioner, PRECONDITIONERS)
+        self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0)
+        self.seed = c.number(f"{t}.seed", self.seed, ge=0, whole=True)
+
+
+@dataclass
+class Output:
+    path: str = "out.usdc"
+    fps: float = 30.0
+    frames: int = 60
+    format: str = "instancer"
+    particle_radius: float | None = None
+    up_axis: str = "Y"
+
+    def _validate(self, c: _Checker, scene: Scene):
+        t = "[output]"
+        if isinstance(self.path, os.PathLike):
+            self.path = os.fspath(self.path)
+        if not isinstance(self.path, str) or Path(self.path).suffix.lower() not in USD_SUFFIXES:
+            c.fail(f"{t}.path", self.path, "expected a file name ending in .usd, .usdc or .usda")
+        self._check_writable(c, f"{t}.path")
+        self.fps = c.number(f"{t}.fps", self.fps, gt=0)
+        self.frames = c.number(f"{t}.frames", self.frames, ge=1, whole=True)
+        self.format = c.choice(f"{t}.format", self.format, OUTPUT_FORMATS)
+        if self.particle_radius is None:
+            ppc, dim = scene.solver.particles_per_cell, scene.dim
+            self.particle_radius = 0.5 * scene.domain.cell_size / ppc ** (1 / dim)
+        self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
+        self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
+
+    def _check_writable(self, c, key):
+        # Refuse now rather than after a long run; missing directories are fine (the writer creates them).
+        target = Path(self.path).absolute()
+        if target.is_dir():
+            c.fail(key, self.path, "is a directory; give a file name ending in .usdc")
+        if target.exists() and not os.access(target, os.W_OK):
+            c.fail(key, self.path, "the file exists and is not writable")
+        ancestor = target.parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            c.fail(key, self.path, f"cannot create it: {ancestor} is not a directory")
+        if not os.access(ancestor, os.W_OK | os.X_OK):
+            c.fail(key, self.path, f"cannot write it: directory {ancestor} is not writable")
+
+
+@dataclass
+class Scene:
+    domain: Domain
+    materials: dict[str, Material]
+    shapes: list[Box | Sphere | Cylinder]
+    solver: SolverSettings = field(default_factory=SolverSettings)
+    output: Output = field(default_factory=Output)
+    name: str = "scene"
+    source: str = "<python>"
+
+    @property
+    def dim(self) -> int:
+        return self.domain.dim
+
+    def validate(self) -> Scene:
+        """Check everything and fill resolved defaults; raises SceneError. Idempotent."""
+        c = _Checker(self.source)
+        if not isinstance(self.name, str) or not self.name:
+            c.fail("name", self.name, "expected a non-empty string")
+        c.instance("[domain]", self.domain, Domain, "a Domain")
+        self.domain._validate(c)
+        c.instance("[solver]", self.solver, SolverSettings, "a SolverSettings")
+        self.solver._validate(c, self.dim)
+        c.instance("[materials]", self.materials, dict, "a table of materials keyed by name")
+        if not self.materials:
+            c.fail("[materials]", self.materials, "no materials defined; add one, e.g. [materials.water]")
+        for key, m in self.materials.items():
+            c.instance(f"[materials.{key}]", m, Material, "a Material")
+            m._validate(c, key)
+        c.instance("[shapes]", self.shapes, list, "a list of shapes ([[shapes]] tables)")
+        if not self.shapes:
+            c.fail("[shapes]", self.shapes, "no shapes defined; add at least one [[shapes]] table")
+        for i, s in enumerate(self.shapes):
+            c.instance(f"[shapes.{i}]", s, tuple(SHAPE_TYPES.values()), "a Box, Sphere or Cylinder")
+            s._validate(c, f"[shapes.{i}]", self)
+        c.instance("[output]", self.output, Output, "an Output")
+        self.output._validate(c, self)
+        # Last: the only check that generates samples.
+        ppc, seed = self.solver.particles_per_cell, self.solver.seed
+        for i, s in enumerate(self.shapes):
+            if not shape_seeds_particles(s, self.domain, ppc, seed):
+                c.fail(f"[shapes.{i}]", s, f"seeds no particles: it is smaller than the particle spacing "
+                                           f"({_g(self.domain.cell_size / ppc ** (1 / self.dim))}); enlarge it "
+                                           f"or refine [domain].cell_size", shown=s.describe())
+        return self
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> Scene:
+        c = _Checker(source)
+        c.table("the scene", d)
+        c.unknown_keys("", d, ("name", "domain", "solver", "materials", "shapes", "output"))
+        if "domain" not in d:
+            c.missing("[domain]", "add a [domain] table with size and cell_size")
+        domain = _build(c, Domain, "[domain]", d["domain"])
+        materials = {}
+        for key, m in c.table("[materials]", d.get("materials", {})).items():
+            materials[key] = _build(c, Material, f"[materials.{key}]", m, name=key)
+        shapes = d.get("shapes", [])
+        if not isinstance(shapes, list):
+            c.fail("[shapes]", shapes, "expected a list of shapes: write each as a [[shapes]] table")
+        built = []
+        for i, s in enumerate(shapes):
+            key = f"[shapes.{i}]"
+            s = dict(c.table(key, s))
+            if "type" not in s:
+                c.missing(f"{key}.type", f"expected one of {', '.join(SHAPE_TYPES)}")
+            kind = c.choice(f"{key}.type", s.pop("type"), tuple(SHAPE_TYPES))
+            built.append(_build(c, SHAPE_TYPES[kind], key, s))
+        scene = cls(
+            domain=domain,
+            materials=materials,
+            shapes=built,
+            solver=_build(c, SolverSettings, "[solver]", d.get("solver", {})),
+            output=_build(c, Output, "[output]", d.get("output", {})),
+            name=d.get("name", "scene"),
+            source=source,
+        )
+        return scene.validate()
+
+    @classmethod
+    def from_toml(cls, path) -> Scene:
+        path = Path(path)
+        source = str(path)
+        try:
+            with open(path, "rb") as f:
+                d = tomllib.load(f)
+        except FileNotFoundError:
+            raise SceneError(f"{source}: scene file not found", "", source, "an existing .toml file") from None
+        except OSError as e:
+            raise SceneError(f"{source}: cannot read scene file: {e.strerror}", "", source) from None
+        except UnicodeDecodeError:
+            raise SceneError(f"{source}: not UTF-8 text; save the scene file as UTF-8", "", source) from None
+        except tomllib.TOMLDecodeError as e:  # its message ends with "(at line L, column C)"
+            last = len(path.read_text(errors="replace").splitlines()) or 1
+            msg = str(e).replace("(at end of document)", f"(at end of document, line {last})")
+            raise SceneError(f"{source}: invalid TOML: {msg}", "", source, "valid TOML syntax") from None
+        d.setdefault("name", path.stem)
+        return cls.from_dict(d, source=source)
+
+    def to_dict(self) -> dict:
+        """Plain TOML-shaped data (lists, no None) that from_dict accepts back."""
+        return {
+            "name": self.name,
+            "domain": _plain(self.domain),
+            "solver": _plain(self.solver),
+            "materials": {k: _plain(m, skip=("name",)) for k, m in self.materials.items()},
+            "shapes": [{"type": s.type_name, **_plain(s)} for s in self.shapes],
+            "output": _plain(self.output),
+        }
+
+    def replace_output(self, path=None, frames=None) -> Scene:
+        """A validated copy with another output path and/or frame count."""
+        new = copy.deepcopy(self)
+        if path is not None:
+            new.output.path = os.fspath(path)
+        if frames is not None:
+            new.output.frames = frames
+        return new.validate()
+
+
+def _build(c: _Checker, cls, key, d, **given):
+    """Construct a dataclass from a TOML table, refusing unknown and missing keys."""
+    c.table(key, d)
+    names = [f.name for f in fields(cls) if f.name not in given]
+    c.unknown_keys(key, d, names)
+    required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
+    for name in required:
+        if name not in d and name not in given:
+            c.missing(f"{key}.{name}", f"required keys: {', '.join(n for n in required if n not in given)}")
+    return cls(**d, **given)
+
+
+def _plain(obj, skip=()):
+    """A dataclass as TOML-shaped data: lists for tuples, None (unset) fields left out."""
+    def conv(v):
+        if isinstance(v, (tuple, list, np.ndarray)):
+            return [conv(x) for x in v]
+        return dict(v) if isinstance(v, dict) else v
+    return {f.name: conv(getattr(obj, f.name)) for f in fields(obj)
+            if f.name not in skip and getattr(obj, f.name) is not None}
+
+
+def load_scene(path) -> Scene:
+    """Load and validate a TOML scene file."""
+    return Scene.from_toml(path)

@@ -1,0 +1,38 @@
+"""Wall-clock seconds per pipeline stage, and the list of stages that ran.
+
+On CUDA, launches are asynchronous, so each stage synchronizes at its end to charge its own time;
+on the CPU, launches are synchronous and the synchronization is skipped.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import warp as wp
+
+
+class StageTimer:
+    def __init__(self, device):
+        self.device = device
+        self.seconds: dict[str, float] = {}  # insertion order = order of first run
+        self.calls: dict[str, int] = {}
+
+    @contextmanager
+    def __call__(self, stage: str):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            if self.device.is_cuda:
+                wp.synchronize_device(self.device)
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
+            self.calls[stage] = self.calls.get(stage, 0) + 1
+
+    @property
+    def stages_run(self) -> list[str]:
+        return list(self.seconds)
+
+    @property
+    def total(self) -> float:
+        return sum(self.seconds.values())

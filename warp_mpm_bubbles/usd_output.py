@@ -1,0 +1,272 @@
+"""Particle output as USD animation (PointInstancer and/or Points), written frame by frame.
+
+Storage layout (value clips)::
+
+    out/sim.usdc                    top-level stage: /World, prototypes, metadata, clip template
+    out/sim_frames/manifest.usdc    declares which attributes come from the clips
+    out/sim_frames/sim.000042.usdc  time samples of frame 42 only
+
+Why not one .usdc saved after every frame: its save time is flat (crate appends in place,
+~3 ms/frame for 50k particles, same at frame 1 and 200), but that in-place append first
+overwrites the old table of contents and only then rewrites the header, so a kill -9 inside
+Save() leaves a file that no longer opens -- every frame is lost (reproduced by killing the
+writer at each pwrite with strace fault injection). Here every file is written to a temp
+name, fsynced and os.replace()d, so a kill at any moment leaves the previous complete state,
+and the per-frame cost is flat: one frame layer plus a constant-size top layer.
+Value clips are core USD composition, so Blender, Houdini and Omniverse resolve them when
+opening the top file; move the top file together with its ``*_frames`` folder.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+
+FORMATS = ("instancer", "points", "both")
+INSTANCER = "/World/Particles"
+POINTS = "/World/ParticlePoints"
+_T = Sdf.ValueTypeNames
+# Time-varying attributes per prim; they live in the per-frame clip layers.
+_CLIP_ATTRS = {
+    INSTANCER: [("protoIndices", _T.IntArray), ("positions", _T.Point3fArray),
+                ("ids", _T.Int64Array), ("velocities", _T.Vector3fArray),
+                ("scales", _T.Float3Array), ("extent", _T.Float3Array)],
+    POINTS: [("points", _T.Point3fArray), ("widths", _T.FloatArray), ("ids", _T.Int64Array),
+             ("velocities", _T.Vector3fArray), ("extent", _T.Float3Array),
+             ("primvars:displayColor", _T.Color3fArray), ("primvars:materialIndex", _T.IntArray)],
+}
+
+
+def _fsync(path: Path, flags: int) -> None:
+    fd = os.open(path, flags)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _atomic_export(layer: Sdf.Layer, path: Path) -> None:
+    """Export to a temp file, fsync, rename: readers see the old or the new file, never half."""
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)  # suffix picks the file format
+    if not layer.Export(str(tmp)):
+        raise OSError(f"USD could not write {tmp}")
+    _fsync(tmp, os.O_RDWR)
+    os.replace(tmp, path)
+    if os.name == "posix":  # persist the rename too, so frames reach disk before the top file
+        _fsync(path.parent, os.O_RDONLY)
+
+
+class StageWriter:
+    """Writes one USD frame per write_frame(); every returned frame is durable on disk."""
+
+    def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
+                 particle_radius: float, format: str = "instancer", up_axis: str = "Y",
+                 meters_per_unit: float = 1.0):
+        t0 = time.perf_counter()
+        if format not in FORMATS:
+            raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
+        if up_axis not in ("Y", "Z"):
+            raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
+        if not materials:
+            raise ValueError("materials must not be empty")
+        if not fps > 0 or not particle_radius > 0:
+            raise ValueError("fps and particle_radius must be > 0")
+        self.path = Path(path)
+        self.format = format
+        self.radius = float(particle_radius)
+        self.seconds = 0.0
+        self._colors = np.array([c for _, c in materials], dtype=np.float32).reshape(-1, 3)
+        self._n_mat = len(materials)
+        self._prims = [p for p, on in ((INSTANCER, format != "points"),
+                                       (POINTS, format != "instancer")) if on]
+        ext = ".usda" if self.path.suffix == ".usda" else ".usdc"
+        self._frames_dir = self.path.with_name(self.path.stem + "_frames")
+        self._ext = ext
+        self._manifest = self._frames_dir / ("manifest" + ext)
+        self._last = None
+        self._closed = False
+
+        # Overwrite: drop the old top file first so it never points at missing frames.
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.unlink(missing_ok=True)
+        shutil.rmtree(self._frames_dir, ignore_errors=True)
+        self._frames_dir.mkdir()
+
+        self._top = self._build_top(materials, fps, up_axis, meters_per_unit)
+        manifest = Sdf.Layer.CreateAnonymous(ext)
+        self._declare(manifest)
+        _atomic_export(manifest, self._manifest)
+        _atomic_export(self._top, self.path)  # valid (empty) stage even before frame 0
+        self.seconds += time.perf_counter() - t0
+
+    def _build_top(self, materials, fps, up_axis, meters_per_unit) -> Sdf.Layer:
+        layer = Sdf.Layer.CreateAnonymous(self._ext)  # we hold it, not the stage
+        stage = Usd.Stage.Open(layer)
+        world = UsdGeom.Xform.Define(stage, "/World")  # typed: Blender skips untyped parents
+        stage.SetDefaultPrim(world.GetPrim())
+        UsdGeom.SetStageUpAxis(stage, up_axis)
+        UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+        stage.SetTimeCodesPerSecond(fps)
+        stage.SetFramesPerSecond(fps)
+        # Attributes are declared here (no values) so their types and primvar interpolation
+        # exist in the composed stage; the values come from the clips.
+        if INSTANCER in self._prims:
+            inst = UsdGeom.PointInstancer.Define(stage, INSTANCER)
+            UsdGeom.Scope.Define(stage, INSTANCER + "/Prototypes")
+            names = [Tf.MakeValidIdentifier(name) for name, _ in materials]
+            if len(set(names)) != len(names):
+                raise ValueError(f"material names are not unique as USD prim names: {names}")
+            protos = []
+            for name, (_, color) in zip(names, materials):
+                sphere = UsdGeom.Sphere.Define(stage, f"{INSTANCER}/Prototypes/{name}")
+                sphere.CreateRadiusAttr(1.0)  # scaled per instance by `scales` = radius
+                sphere.CreateExtentAttr([(-1, -1, -1), (1, 1, 1)])
+                sphere.CreateDisplayColorAttr([Gf.Vec3f(*map(float, color))])
+                protos.append(sphere.GetPath())
+            inst.GetPrototypesRel().SetTargets(protos)  # index i = materials[i]
+            for create in (inst.CreateProtoIndicesAttr, inst.CreatePositionsAttr, inst.CreateIdsAttr,
+                           inst.CreateVelocitiesAttr, inst.CreateScalesAttr, inst.CreateExtentAttr):
+                create()
+        if POINTS in self._prims:
+            pts = UsdGeom.Points.Define(stage, POINTS)
+            for create in (pts.CreatePointsAttr, pts.CreateIdsAttr, pts.CreateVelocitiesAttr,
+                           pts.CreateExtentAttr):
+                create()
+            pts.CreateWidthsAttr()
+            pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+            pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+            UsdGeom.PrimvarsAPI(pts).CreatePrimvar("materialIndex", _T.IntArray, UsdGeom.Tokens.vertex)
+        return layer  # the stage is dropped: later edits go straight to the layer
+
+    def _declare(self, layer: Sdf.Layer) -> dict:
+        """Create the clip prim/attribute specs in `layer`; returns {(prim, name): spec path}."""
+        paths = {}
+        for prim in self._prims:
+            spec = Sdf.CreatePrimInLayer(layer, prim)
+            for name, type_name in _CLIP_ATTRS[prim]:
+                paths[prim, name] = Sdf.AttributeSpec(spec, name, type_name).path
+        return paths
+
+    def write_frame(self, frame: int, positions: np.ndarray, velocities: np.ndarray,
+                    ids: np.ndarray, material: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        if self._closed:
+            raise ValueError("write_frame after close()")
+        frame = int(frame)
+        if frame < 0:  # clip file names are zero-padded frame numbers
+            raise ValueError(f"frame {frame} must be >= 0")
+        if self._last is not None and frame <= self._last:
+            raise ValueError(f"frame {frame} must be greater than the last frame {self._last}")
+        pos, vel, ids, mat = self._validate(frame, positions, velocities, ids, material)
+
+        n = len(pos)
+        if n:
+            lo, hi = pos.min(axis=0) - self.radius, pos.max(axis=0) + self.radius
+        else:
+            lo = hi = np.zeros(3, np.float32)
+        extent = Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
+        v_pos, v_vel = Vt.Vec3fArray.FromNumpy(pos), Vt.Vec3fArray.FromNumpy(vel)
+        v_ids, v_mat = Vt.Int64Array.FromNumpy(ids), Vt.IntArray.FromNumpy(mat)
+        values = {
+            (INSTANCER, "protoIndices"): v_mat, (INSTANCER, "positions"): v_pos,
+            (INSTANCER, "ids"): v_ids, (INSTANCER, "velocities"): v_vel,
+            (INSTANCER, "extent"): extent,
+            (POINTS, "points"): v_pos, (POINTS, "ids"): v_ids, (POINTS, "velocities"): v_vel,
+            (POINTS, "extent"): extent, (POINTS, "primvars:materialIndex"): v_mat,
+        }
+        if INSTANCER in self._prims:
+            values[INSTANCER, "scales"] = Vt.Vec3fArray.FromNumpy(np.full((n, 3), self.radius, np.float32))
+        if POINTS in self._prims:
+            values[POINTS, "widths"] = Vt.FloatArray.FromNumpy(np.full(n, 2 * self.radius, np.float32))
+            values[POINTS, "primvars:displayColor"] = Vt.Vec3fArray.FromNumpy(self._colors[mat])
+
+        layer = Sdf.Layer.CreateAnonymous(self._ext)
+        for key, attr_path in self._declare(layer).items():
+            layer.SetTimeSample(attr_path, frame, values[key])
+        name = f"{self.path.stem}.{frame:06d}{self._ext}"
+        _atomic_export(layer, self._frames_dir / name)
+
+        # Then publish it. Template clips keep the top file constant-size (an explicit clip list
+        # made it grow, 3 -> 25 ms/frame over 5000 frames); USD skips template paths with no
+        # file, so gaps in the frame numbers are fine.
+        if self._last is None:
+            self._top.startTimeCode = frame
+        self._top.endTimeCode = frame
+        self._top.GetPrimAtPath("/World").SetInfo("clips", {"default": {
+            "primPath": "/World",
+            "templateAssetPath": f"./{self._frames_dir.name}/{self.path.stem}.######{self._ext}",
+            "templateStartTime": float(self._top.startTimeCode),
+            "templateEndTime": float(frame),
+            "templateStride": 1.0,
+            "manifestAssetPath": Sdf.AssetPath(f"./{self._frames_dir.name}/{self._manifest.name}"),
+        }})
+        _atomic_export(self._top, self.path)
+        self._last = frame
+        self.seconds += time.perf_counter() - t0
+
+    def _validate(self, frame, positions, velocities, ids, material):
+        pos = np.ascontiguousarray(positions, dtype=np.float32)
+        vel = np.ascontiguousarray(velocities, dtype=np.float32)
+        ids = np.ascontiguousarray(ids, dtype=np.int64)
+        mat = np.ascontiguousarray(material, dtype=np.int32)
+        n = len(pos) if pos.ndim == 2 else -1
+        for name, arr, shape in (("positions", pos, (n, 3)), ("velocities", vel, (n, 3)),
+                                 ("ids", ids, (n,)), ("material", mat, (n,))):
+            if n < 0 or arr.shape != shape:
+                raise ValueError(f"frame {frame}: {name} has shape {arr.shape}, expected "
+                                 f"{shape if n >= 0 else '(N, 3)'}")
+        for name, arr in (("positions", pos), ("velocities", vel)):
+            if not np.isfinite(arr).all():
+                raise ValueError(f"frame {frame}: {name} contains NaN or inf")
+        if n and (mat.min() < 0 or mat.max() >= self._n_mat):
+            raise ValueError(f"frame {frame}: material index outside [0, {self._n_mat})")
+        return pos, vel, ids, mat
+
+    def close(self) -> None:
+        # Nothing to flush: every frame was made durable in write_frame.
+        self._closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_frames(path) -> dict:
+    """Read a file written by StageWriter back into numpy arrays (for tests and tools)."""
+    path = str(path)
+    cached = Sdf.Layer.Find(path)
+    if cached:
+        cached.Reload()  # the file is replaced on every frame; don't trust the registry copy
+    stage = Usd.Stage.Open(path)
+    if not stage:
+        raise OSError(f"cannot open {path}")
+    root = stage.GetRootLayer()
+    start = root.startTimeCode if root.HasStartTimeCode() else None
+    end = root.endTimeCode if root.HasEndTimeCode() else None
+    inst = UsdGeom.PointInstancer.Get(stage, INSTANCER)
+    pts = UsdGeom.Points.Get(stage, POINTS)
+    frames = {}
+    if start is not None:
+        main = inst.GetPositionsAttr() if inst else pts.GetPointsAttr()
+        for t in map(int, main.GetTimeSamples()):
+            if inst:
+                get = lambda a: np.asarray(inst.GetPrim().GetAttribute(a).Get(t))
+                f = {"positions": get("positions"), "velocities": get("velocities"),
+                     "ids": get("ids"), "proto_indices": get("protoIndices"),
+                     "scales": get("scales"), "extent": get("extent")}
+            else:  # points-only files: derive the instancer view from widths / materialIndex
+                get = lambda a: np.asarray(pts.GetPrim().GetAttribute(a).Get(t))
+                half = get("widths") / 2
+                f = {"positions": get("points"), "velocities": get("velocities"),
+                     "ids": get("ids"), "proto_indices": get("primvars:materialIndex"),
+                     "scales": np.repeat(half[:, None], 3, axis=1), "extent": get("extent")}
+            frames[t] = f
+    return {"fps": stage.GetTimeCodesPerSecond(), "up_axis": UsdGeom.GetStageUpAxis(stage),
+            "start": start, "end": end, "frames": frames}

@@ -65,7 +65,7 @@ def run_size(n: int, args, dev) -> dict:
     setup = time.perf_counter() - t0
 
     t0, first = time.perf_counter(), 0.0
-    for i in range(args.warmup):
+    for _ in range(args.warmup):
         sim.step(sim.stable_dt())
         wp.synchronize_device(dev)
         first = first or time.perf_counter() - t0  # the first step compiles or loads the kernels
@@ -111,8 +111,8 @@ def markdown(meta: dict, rows: list[dict]) -> str:
            f"(kernel cache: {meta['kernel_cache']}) then {meta['steps']} timed steps of dt = stable_dt()", ""]
     table = [["grid"] + [f"{r['n']}^3 ({r['num_cells']:,} cells)" for r in rows],
              ["particles"] + [f"{r['particles']:,}" for r in rows],
-             ["setup / first step / all warm-up (s)"] + [
-                 f"{r['setup_seconds']:.2f} / {r['first_step_seconds']:.2f} / {r['warmup_seconds']:.2f}" for r in rows],
+             ["setup / first step / all warm-up (s)"] + [" / ".join(
+                 f"{r[k]:.2f}" for k in ("setup_seconds", "first_step_seconds", "warmup_seconds")) for r in rows],
              ["timed steps"] + [str(r["steps"]) for r in rows],
              ["**wall s / step**"] + [f"**{r['seconds_per_step'] * 1e3:.1f} ms**" for r in rows],
              ["**particle-steps / s**"] + [f"**{r['particle_steps_per_second']:.3g}**" for r in rows]]
@@ -145,8 +145,9 @@ def main(argv=None) -> int:
     if args.steps < 1 or args.warmup < 0 or not sizes:
         ap.error("need --steps >= 1, --warmup >= 0 and at least one size")
 
-    if args.cold_cache:
-        wp.config.kernel_cache_dir = tempfile.mkdtemp(prefix="warp_cache_")
+    cold_dir = tempfile.mkdtemp(prefix="warp_cache_") if args.cold_cache else None
+    if cold_dir:
+        wp.config.kernel_cache_dir = cold_dir
     wp.init()
     dev = wp.get_device(args.device)
     meta = {
@@ -155,13 +156,13 @@ def main(argv=None) -> int:
         "device": device_description(dev), "device_alias": dev.alias, "device_name": dev.name,
         "cpu_cores": os.cpu_count(),
         "kernel_cache": ("cold: compiled into " if args.cold_cache else "as found: ") + wp.config.kernel_cache_dir,
-        "command": shlex.join([Path(sys.executable).name, *sys.argv]) if argv is None else shlex.join(argv),
+        "command": shlex.join([sys.executable, *sys.argv] if argv is None else [__file__, *argv]),
         "scene": f"domain [1, 1, 1] m, free-slip walls, water box [0, 0, 0] .. {list(WATER_MAX)}",
         "ppc": args.ppc, "warmup": args.warmup, "steps": args.steps,
     }
     rows = []
     for n in sizes:
-        print(f"N = {n}: running {args.warmup} warm-up + {args.steps} timed steps ...", file=sys.stderr, flush=True)
+        print(f"N = {n}: {args.warmup} warm-up + {args.steps} timed steps ...", file=sys.stderr, flush=True)
         rows.append(run_size(n, args, dev))
     text = markdown(meta, rows)
     print(text)
@@ -170,8 +171,8 @@ def main(argv=None) -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"throughput_{label}.md").write_text(text)
     (RESULTS / f"throughput_{label}.json").write_text(json.dumps({**meta, "results": rows}, indent=2) + "\n")
-    if args.cold_cache:
-        shutil.rmtree(wp.config.kernel_cache_dir, ignore_errors=True)
+    if cold_dir:
+        shutil.rmtree(cold_dir, ignore_errors=True)
     print(f"wrote {RESULTS / f'throughput_{label}'}.{{md,json}}", file=sys.stderr)
     return 0
 

@@ -24,6 +24,29 @@ def scene_with_overrides(path, args) -> "object":
     return scene.validate()
 
 
+def run_example(scene_path, description: str, argv=None) -> int:
+    """Body of every example script: the shared flags, then run the scene next to the script."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_run_overrides(parser)
+    args = parser.parse_args(argv)
+    try:
+        scene = scene_with_overrides(scene_path, args)
+    except SceneError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    _run(scene, args)
+    return 0
+
+
+def _run(scene, args):
+    import warp as wp  # deferred: `check` and bad scenes never start Warp
+
+    wp.config.quiet = True
+    from .runner import run_scene
+
+    run_scene(scene, device=args.device, progress=not args.quiet)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="warp-mpm-bubbles", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -42,12 +65,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
 
-    import warp as wp  # deferred: `check` and bad scenes never start Warp
-
-    wp.config.quiet = True
-    from .runner import run_scene
-
-    run_scene(scene, device=args.device, progress=not args.quiet)
+    _run(scene, args)
     return 0
 
 

@@ -1,7 +1,7 @@
 """Throughput of one simulation step: a 3D dam break at several grid sizes, per pipeline stage.
 
-    /work/venv/bin/python benchmarks/throughput.py                  # N = 32 and 64 on the CPU
-    /work/venv/bin/python benchmarks/throughput.py --sizes 32 --steps 5 --device cuda:0 --label h100
+    python benchmarks/throughput.py                  # N = 32 and 64 on the CPU
+    python benchmarks/throughput.py --sizes 32 --steps 5 --device cuda:0 --label h100
 
 Scene per size N: domain [1, 1, 1] m in N^3 cells (cell_size 1/N), free-slip walls, a water box
 x in [0, 0.4], y in [0, 0.625], full z (1/4 of the domain) against the x_min wall.

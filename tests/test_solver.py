@@ -12,7 +12,7 @@ from warp_mpm_bubbles.simulation import Simulation
 
 wp.config.quiet = True
 G = 9.81
-REFDATA = pathlib.Path(__file__).resolve().parents[2] / "shared" / "refdata"
+REFDATA = pathlib.Path(__file__).resolve().parent / "data"  # copies of DESIGN.md §5 reference data
 MARTIN_MOYCE = REFDATA / "martin_moyce_1952_n2_2_a2.25in.csv"
 
 

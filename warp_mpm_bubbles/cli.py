@@ -55,8 +55,21 @@ def main(argv=None) -> int:
     add_run_overrides(run_p)
     check_p = sub.add_parser("check", help="validate a scene file without simulating")
     check_p.add_argument("scene", help="scene file (.toml)")
+    preview_p = sub.add_parser("preview", help="render chosen frames of a written animation to a PNG")
+    preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
+    preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
+    preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
     args = parser.parse_args(argv)
 
+    if args.command == "preview":
+        from pathlib import Path
+
+        from .preview import render_preview
+
+        frames = [int(f) for f in args.frames.split(",")] if args.frames else None
+        png = args.png or str(Path(args.stage).with_suffix(".png"))
+        print(render_preview(args.stage, png, frames, title=Path(args.stage).stem))
+        return 0
     try:
         if args.command == "check":
             return _check(args.scene)

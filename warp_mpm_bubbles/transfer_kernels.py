@@ -22,27 +22,33 @@ def bspline_weights(f: float):
     return wp.vec3(0.5 * (1.5 - f) * (1.5 - f), 0.75 - (f - 1.0) * (f - 1.0), 0.5 * (f - 0.5) * (f - 0.5))
 
 
-@wp.func
-def stencil_base(X: wp.vec3, dim: int):
-    b = wp.vec3i(int(wp.floor(X[0] - 0.5)), int(wp.floor(X[1] - 0.5)), int(wp.floor(X[2] - 0.5)))
-    if dim == 2:
-        b = wp.vec3i(b[0], b[1], 0)
-    return b
+@wp.struct
+class Stencil:
+    """The 3x3x3 nodes (3x3x1 in 2D) a particle touches on one staggered grid, with their weights."""
+
+    base: wp.vec3i  # lowest node index
+    frac: wp.vec3  # particle position relative to the base node, in cells
+    wx: wp.vec3
+    wy: wp.vec3
+    wz: wp.vec3
+    nk: int  # nodes along z: 3, or 1 in 2D where node and particle share z (weight 1)
 
 
 @wp.func
-def stencil_frac(X: wp.vec3, b: wp.vec3i, dim: int):
-    f = X - wp.vec3(float(b[0]), float(b[1]), float(b[2]))
+def make_stencil(X: wp.vec3, dim: int):
+    s = Stencil()
+    s.base = wp.vec3i(int(wp.floor(X[0] - 0.5)), int(wp.floor(X[1] - 0.5)), int(wp.floor(X[2] - 0.5)))
+    s.frac = X - wp.vec3(float(s.base[0]), float(s.base[1]), float(s.base[2]))
+    s.wx = bspline_weights(s.frac[0])
+    s.wy = bspline_weights(s.frac[1])
+    s.wz = bspline_weights(s.frac[2])
+    s.nk = 3
     if dim == 2:
-        f = wp.vec3(f[0], f[1], 0.0)  # node and particle share z: no offset, weight 1
-    return f
-
-
-@wp.func
-def z_weights(fz: float, dim: int):
-    if dim == 2:
-        return wp.vec3(1.0, 0.0, 0.0)
-    return bspline_weights(fz)
+        s.base = wp.vec3i(s.base[0], s.base[1], 0)
+        s.frac = wp.vec3(s.frac[0], s.frac[1], 0.0)
+        s.wz = wp.vec3(1.0, 0.0, 0.0)
+        s.nk = 1
+    return s
 
 
 @wp.func
@@ -62,21 +68,14 @@ def splat_component(
     grad: wp.vec3,
 ):
     """Scatter one particle's mass and APIC momentum of one component onto its face grid."""
-    b = stencil_base(X, dim)
-    f = stencil_frac(X, b, dim)
-    wx = bspline_weights(f[0])
-    wy = bspline_weights(f[1])
-    wz = z_weights(f[2], dim)
-    nk = 3
-    if dim == 2:
-        nk = 1
+    s = make_stencil(X, dim)
     for i in range(3):
         for j in range(3):
-            for k in range(nk):
-                w = wx[i] * wy[j] * wz[k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - f) * dx
-                wp.atomic_add(mom, b[0] + i, b[1] + j, b[2] + k, w * m * (vel + wp.dot(grad, dpos)))
-                wp.atomic_add(mass, b[0] + i, b[1] + j, b[2] + k, w * m)
+            for k in range(s.nk):
+                w = s.wx[i] * s.wy[j] * s.wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
+                wp.atomic_add(mom, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m * (vel + wp.dot(grad, dpos)))
+                wp.atomic_add(mass, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m)
 
 
 @wp.func
@@ -89,20 +88,13 @@ def splat_cell(
     vol: float,
 ):
     """Scatter mass and rest volume to cell centres: density and volume fraction per cell."""
-    b = stencil_base(X, dim)
-    f = stencil_frac(X, b, dim)
-    wx = bspline_weights(f[0])
-    wy = bspline_weights(f[1])
-    wz = z_weights(f[2], dim)
-    nk = 3
-    if dim == 2:
-        nk = 1
+    s = make_stencil(X, dim)
     for i in range(3):
         for j in range(3):
-            for k in range(nk):
-                w = wx[i] * wy[j] * wz[k]
-                wp.atomic_add(cell_mass, b[0] + i, b[1] + j, b[2] + k, w * m)
-                wp.atomic_add(cell_volume, b[0] + i, b[1] + j, b[2] + k, w * vol)
+            for k in range(s.nk):
+                w = s.wx[i] * s.wy[j] * s.wz[k]
+                wp.atomic_add(cell_mass, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m)
+                wp.atomic_add(cell_volume, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * vol)
 
 
 @wp.kernel
@@ -143,22 +135,15 @@ def p2g(
 @wp.func
 def gather_component(vel: wp.array3d(dtype=float), X: wp.vec3, dim: int, dx: float):
     """Interpolate one component and its APIC gradient (B-spline: D^-1 = 4/dx^2) at a particle."""
-    b = stencil_base(X, dim)
-    f = stencil_frac(X, b, dim)
-    wx = bspline_weights(f[0])
-    wy = bspline_weights(f[1])
-    wz = z_weights(f[2], dim)
-    nk = 3
-    if dim == 2:
-        nk = 1
+    s = make_stencil(X, dim)
     value = float(0.0)
     grad = wp.vec3(0.0)
     for i in range(3):
         for j in range(3):
-            for k in range(nk):
-                w = wx[i] * wy[j] * wz[k]
-                g = vel[b[0] + i, b[1] + j, b[2] + k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - f) * dx
+            for k in range(s.nk):
+                w = s.wx[i] * s.wy[j] * s.wz[k]
+                g = vel[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
                 value += w * g
                 grad += (4.0 / (dx * dx)) * w * g * dpos
     return wp.vec4(value, grad[0], grad[1], grad[2])

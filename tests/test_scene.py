@@ -244,8 +244,8 @@ BAD = [
      ["[domain].walls.x_min", "'noslip'", "did you mean 'no_slip'"]),
     ("unknown wall key", setk("domain", "walls", value={"top": "open"}), ["[domain].walls.top", "'open'", "x_min"]),
     ("z wall in 2D", setk("domain", "walls", value={"z_min": "open"}), ["[domain].walls.z_min", "'open'", "3D"]),
-    ("unknown material kind", setk("materials", "water", "kind", value="gas"),
-     ["[materials.water].kind", "'gas'", "'liquid'"]),
+    ("unknown material kind", setk("materials", "water", "kind", value="foam"),
+     ["[materials.water].kind", "'foam'", "'liquid'", "'gas'"]),
     ("undefined material", setk("shapes", 0, "material", value="oli"), ["[shapes.0].material", "'oli'", "'oil'"]),
     ("no materials", setk("materials", value={}), ["[materials]", "no materials"]),
     ("no shapes", setk("shapes", value=[]), ["[shapes]", "no shapes"]),
@@ -267,6 +267,14 @@ BAD = [
     ("bad format", setk("output", "format", value="mesh"), ["[output].format", "'mesh'", "'instancer'"]),
     ("bad up axis", setk("output", "up_axis", value="X"), ["[output].up_axis", "'X'"]),
     ("zero particle radius", setk("output", "particle_radius", value=0), ["[output].particle_radius", "0"]),
+    ("bad gas law", setk("materials", "oil", value={"kind": "gas", "eos": "vdw"}),
+     ["[materials.oil].eos", "'vdw'", "'isothermal'"]),
+    ("eos on a liquid", setk("materials", "oil", "eos", value="isothermal"),
+     ["[materials.oil].eos", "only gas materials"]),
+    ("gamma not above 1", setk("materials", "oil", value={"kind": "gas", "gamma": 1.0}),
+     ["[materials.oil].gamma", "1.0", "> 1"]),
+    ("zero ambient pressure", setk("domain", "ambient_pressure", value=0.0), ["[domain].ambient_pressure", "0.0"]),
+    ("bad interface", setk("solver", "interface", value="level_set"), ["[solver].interface", "'level_set'", "'sharp'"]),
 ]
 
 
@@ -288,7 +296,7 @@ def test_unknown_key_message_from_file(tmp_path):
     with pytest.raises(SceneError) as err:
         load_scene(path)
     assert str(err.value) == (f"{path}: unknown key [materials.water].densty = 1000.0; "
-                              "allowed keys: kind, density, color (did you mean 'density'?)")
+                              "allowed keys: kind, density, color, eos, gamma (did you mean 'density'?)")
     assert err.value.key == "[materials.water].densty" and err.value.value == 1000.0
 
 
@@ -358,3 +366,11 @@ def test_missing_file(tmp_path):
 def test_scene_error_is_value_error():
     assert issubclass(SceneError, ValueError)
     assert math.isclose(Scene.from_dict(good_dict()).domain.cell_size, 0.02)
+
+
+def test_gas_material_defaults():
+    gas = Material("air", kind="gas")
+    Scene(domain=Domain(size=(0.4, 0.2), cell_size=0.02), materials={"air": gas},
+          shapes=[Box("air", (0.0, 0.0), (0.1, 0.1))]).validate()
+    assert (gas.density, gas.eos, gas.gamma) == (1.2, "isothermal", 1.4)
+    assert gas.is_gas and not Material("water").is_gas

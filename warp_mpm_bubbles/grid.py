@@ -19,6 +19,14 @@ FLUID = 1
 SOLID_FREE_SLIP = 2
 SOLID_NO_SLIP = 3
 
+# Phase of a fluid cell (and of a particle).
+PHASE_LIQUID = 0
+PHASE_GAS = 1
+
+# Gas-liquid interface methods, as indices of scene.INTERFACES.
+INTERFACE_SHARP = 0
+INTERFACE_BASELINE = 1
+
 # Wall-type indices as in scene.WALL_TYPES.
 WALL_NO_SLIP = 0
 WALL_FREE_SLIP = 1

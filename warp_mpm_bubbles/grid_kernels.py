@@ -8,12 +8,15 @@ Array-edge faces have a missing neighbour; they are treated as solid.
 
 import warp as wp
 
-from .grid import EMPTY, FLUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN
+from .grid import (
+    EMPTY, FLUID, INTERFACE_BASELINE, PHASE_GAS, PHASE_LIQUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN,
+)
 
 wp.set_module_options({"enable_backward": False})
 
 MIN_SURFACE_FRACTION = wp.constant(0.1)
 VOLUME_NOISE_BAND = wp.constant(0.1)
+HOLE_FRACTION = wp.constant(0.25)
 
 
 @wp.func
@@ -49,16 +52,46 @@ def momentum_to_velocity(
         vel[i, j, k] = 0.0
 
 
+@wp.func
+def volume_fraction(cell_volume: wp.array3d(dtype=float), c: wp.vec3i, inv_cell_vol: float):
+    if c[0] < 0 or c[1] < 0 or c[2] < 0:
+        return 0.0
+    if c[0] >= cell_volume.shape[0] or c[1] >= cell_volume.shape[1] or c[2] >= cell_volume.shape[2]:
+        return 0.0
+    return cell_volume[c[0], c[1], c[2]] * inv_cell_vol
+
+
+@wp.func
+def fill_fraction(
+    liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i,
+    inv_cell_vol: float,
+):
+    phi = volume_fraction(liq_volume, c, inv_cell_vol)
+    if two_phase != 0:
+        phi += volume_fraction(gas_volume, c, inv_cell_vol)
+    return phi
+
+
 @wp.kernel
 def classify_cells(
     count: wp.array3d(dtype=wp.int32),
+    liq_volume: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    two_phase: int,
+    inv_cell_vol: float,
     ghost: wp.vec3i,
     interior: wp.vec3i,
     wall_lo: wp.vec3i,
     wall_hi: wp.vec3i,
     types: wp.array3d(dtype=wp.int32),
 ):
-    """Ghost cells take the type of their wall (open walls are empty); inside, any particle -> fluid."""
+    """Ghost cells take the type of their wall (open walls are empty); inside, a cell is fluid if
+    a particle is in it or if the splatted fill fraction exceeds HOLE_FRACTION.
+
+    Stretching flow (a wake, expanding gas) leaves particle-free cells inside the material; read
+    as empty they would pin p = 0 inside the water and vent bubbles. A one-cell hole still gets
+    about 0.44 from its neighbours, while the air above a flat surface gets about 0.17.
+    """
     i, j, k = wp.tid()
     c = wp.vec3i(i, j, k)
     in_wall = int(0)
@@ -78,19 +111,34 @@ def classify_cells(
             types[i, j, k] = SOLID_NO_SLIP
         else:
             types[i, j, k] = SOLID_FREE_SLIP
-    elif count[i, j, k] > 0:
+    elif count[i, j, k] > 0 or fill_fraction(liq_volume, gas_volume, two_phase, c, inv_cell_vol) > HOLE_FRACTION:
         types[i, j, k] = FLUID
     else:
         types[i, j, k] = EMPTY
 
 
-@wp.func
-def volume_fraction(cell_volume: wp.array3d(dtype=float), c: wp.vec3i, inv_cell_vol: float):
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return 0.0
-    if c[0] >= cell_volume.shape[0] or c[1] >= cell_volume.shape[1] or c[2] >= cell_volume.shape[2]:
-        return 0.0
-    return cell_volume[c[0], c[1], c[2]] * inv_cell_vol
+@wp.kernel
+def classify_phases(
+    types: wp.array3d(dtype=wp.int32),
+    gas_count: wp.array3d(dtype=wp.int32),
+    liq_volume: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    interface: int,
+    phase: wp.array3d(dtype=wp.int32),
+):
+    """Which fluid cells are gas. Baseline (the published rule): any gas particle in the cell.
+    Sharp: the gas's splatted volume exceeds the liquid's, i.e. the cell centre is on the gas side
+    of the interface that the particles describe.
+    """
+    i, j, k = wp.tid()
+    ph = PHASE_LIQUID
+    if types[i, j, k] == FLUID:
+        if interface == INTERFACE_BASELINE:
+            if gas_count[i, j, k] > 0:
+                ph = PHASE_GAS
+        elif gas_volume[i, j, k] > liq_volume[i, j, k]:
+            ph = PHASE_GAS
+    phase[i, j, k] = ph
 
 
 @wp.func
@@ -107,11 +155,21 @@ def surface_fraction(phi_fluid: float, phi_empty: float):
     return wp.clamp(theta, MIN_SURFACE_FRACTION, 1.0)
 
 
+@wp.func
+def at(a: wp.array3d(dtype=float), c: wp.vec3i):
+    return a[c[0], c[1], c[2]]
+
+
 @wp.kernel
 def face_inverse_density(
     types: wp.array3d(dtype=wp.int32),
-    cell_mass: wp.array3d(dtype=float),
-    cell_volume: wp.array3d(dtype=float),
+    phase: wp.array3d(dtype=wp.int32),
+    liq_mass: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    gas_mass: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    two_phase: int,
+    interface: int,
     axis: int,
     inv_cell_vol: float,
     inv_rho: wp.array3d(dtype=float),
@@ -122,31 +180,83 @@ def face_inverse_density(
     splatted to the fluid cells beside the face, so a single liquid gets exactly its density. On a
     face to an empty cell, p = 0 is imposed at the surface (theta of the way across), not at the
     empty cell's centre: hydrostatic pressure then matches rho g depth, not rho g (depth + dx/2).
+    With gas, the baseline mixes both phases' mass and volume (a smeared density); the sharp
+    interface keeps each phase's own density and, on a face between a liquid and a gas cell,
+    takes rho = theta rho_liquid + (1 - theta) rho_gas with theta the liquid share of the segment
+    between the centres (ghost-fluid method, Liu, Fedkiw & Kang 2000).
     """
     i, j, k = wp.tid()
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
     t_hi = cell_type_at(types, hi)
-    value = float(0.0)
-    if not is_solid(t_lo) and not is_solid(t_hi) and (t_lo == FLUID or t_hi == FLUID):
-        m = float(0.0)
-        vol = float(0.0)
-        if t_lo == FLUID:
-            m += cell_mass[lo[0], lo[1], lo[2]]
-            vol += cell_volume[lo[0], lo[1], lo[2]]
-        if t_hi == FLUID:
-            m += cell_mass[hi[0], hi[1], hi[2]]
-            vol += cell_volume[hi[0], hi[1], hi[2]]
-        if m > 0.0:
-            value = vol / m
-        phi_lo = volume_fraction(cell_volume, lo, inv_cell_vol)
-        phi_hi = volume_fraction(cell_volume, hi, inv_cell_vol)
-        if t_lo == EMPTY:
-            value = value / surface_fraction(phi_hi, phi_lo)
-        if t_hi == EMPTY:
-            value = value / surface_fraction(phi_lo, phi_hi)
+    if is_solid(t_lo) or is_solid(t_hi) or (t_lo != FLUID and t_hi != FLUID):
+        inv_rho[i, j, k] = 0.0
+        return
+    f_lo = float(t_lo == FLUID)
+    f_hi = float(t_hi == FLUID)
+    ml = f_lo * at(liq_mass, lo) + f_hi * at(liq_mass, hi)
+    vl = f_lo * at(liq_volume, lo) + f_hi * at(liq_volume, hi)
+    rho = float(0.0)
+    if two_phase == 0:  # liquid-only scenes never read the gas arrays
+        rho = ml / vl
+    else:
+        mg = f_lo * at(gas_mass, lo) + f_hi * at(gas_mass, hi)
+        vg = f_lo * at(gas_volume, lo) + f_hi * at(gas_volume, hi)
+        rho = (ml + mg) / (vl + vg)  # the baseline's mixture; also the fallback below
+        if interface != INTERFACE_BASELINE:
+            p_lo = -1
+            p_hi = -1
+            if t_lo == FLUID:
+                p_lo = phase[lo[0], lo[1], lo[2]]
+            if t_hi == FLUID:
+                p_hi = phase[hi[0], hi[1], hi[2]]
+            if p_lo == PHASE_GAS and p_hi == PHASE_LIQUID:
+                rho = interface_density(liq_mass, liq_volume, gas_mass, gas_volume, hi, lo, inv_cell_vol)
+            elif p_lo == PHASE_LIQUID and p_hi == PHASE_GAS:
+                rho = interface_density(liq_mass, liq_volume, gas_mass, gas_volume, lo, hi, inv_cell_vol)
+            elif (p_lo == PHASE_GAS or p_hi == PHASE_GAS) and vg > 0.0:
+                rho = mg / vg
+            elif vl > 0.0:
+                rho = ml / vl
+    value = 1.0 / rho
+    # Free surface: the total (liquid + gas) volume fraction crosses 1/2 between the centres.
+    if t_lo == EMPTY:
+        value = value / surface_fraction(
+            fill_fraction(liq_volume, gas_volume, two_phase, hi, inv_cell_vol),
+            fill_fraction(liq_volume, gas_volume, two_phase, lo, inv_cell_vol))
+    if t_hi == EMPTY:
+        value = value / surface_fraction(
+            fill_fraction(liq_volume, gas_volume, two_phase, lo, inv_cell_vol),
+            fill_fraction(liq_volume, gas_volume, two_phase, hi, inv_cell_vol))
     inv_rho[i, j, k] = value
+
+
+
+
+@wp.func
+def interface_density(
+    liq_mass: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    gas_mass: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    c_liq: wp.vec3i,
+    c_gas: wp.vec3i,
+    inv_cell_vol: float,
+):
+    """theta rho_l + (1 - theta) rho_g on a face between a liquid cell and a gas cell.
+
+    The level set psi = phi_liquid - phi_gas is positive on the liquid side; theta is where it
+    crosses zero along the segment between the two centres.
+    """
+    psi_l = (at(liq_volume, c_liq) - at(gas_volume, c_liq)) * inv_cell_vol
+    psi_g = (at(liq_volume, c_gas) - at(gas_volume, c_gas)) * inv_cell_vol
+    theta = float(0.5)
+    if psi_l - psi_g > 1.0e-6:
+        theta = wp.clamp(psi_l / (psi_l - psi_g), 0.0, 1.0)
+    rho_l = at(liq_mass, c_liq) / at(liq_volume, c_liq)
+    rho_g = at(gas_mass, c_gas) / at(gas_volume, c_gas)
+    return theta * rho_l + (1.0 - theta) * rho_g
 
 
 @wp.kernel
@@ -162,55 +272,76 @@ def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array
 @wp.kernel
 def pressure_diagonal_and_rhs(
     types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
     inv_rho_u: wp.array3d(dtype=float),
     inv_rho_v: wp.array3d(dtype=float),
     inv_rho_w: wp.array3d(dtype=float),
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
-    cell_volume: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    gas_pv: wp.array3d(dtype=float),
+    gas_kv: wp.array3d(dtype=float),
+    two_phase: int,
     dx: float,
     dt: float,
     dim: int,
     volume_correction: float,
     diag: wp.array3d(dtype=float),
+    extra_diag: wp.array3d(dtype=float),
     rhs: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
 ):
-    """Diagonal of -div(1/rho grad) and b = -(div u* - d_target)/dt in fluid cells.
+    """Diagonal and right-hand side of the one two-phase system (DESIGN §2), per fluid cell c:
 
-    d_target = volume_correction * max(phi - 1, 0) / dt asks over-full cells (rest-volume fraction
-    phi > 1) to expand, which stops the slow volume loss of particle clustering.
-    counters[0] counts fluid cells, counters[1] fluid cells with a Dirichlet (empty) neighbour:
-    with none, the system is singular and the caller projects out the constant.
+        (kappa_c/dt^2)(p_c - p^_c) - div(1/rho grad p)_c = -(div u* - d_target)/dt
+
+    kappa = 0 in liquid cells; in gas cells kappa and the particles' pressure p^ are the
+    volume-weighted averages splatted by p2g_gas. d_target = volume_correction * max(phi - 1 - band,
+    0)/dt asks over-full liquid cells (rest-volume fraction phi beyond the seeding noise) to
+    expand, which stops the slow volume loss of particle clustering. counters[0] counts fluid
+    cells, counters[1] those that pin the pressure level (an empty neighbour or kappa > 0): with
+    none, the system is singular and the solver projects out the constant.
     """
     i, j, k = wp.tid()
     if types[i, j, k] != FLUID:
         diag[i, j, k] = 1.0
+        extra_diag[i, j, k] = 0.0
         rhs[i, j, k] = 0.0
         return
     inv_dx2 = 1.0 / (dx * dx)
     d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
     div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
-    dirichlet = int(0)
+    pinned = int(0)
     for s in range(2):
         if cell_type_at(types, wp.vec3i(i - 1 + 2 * s, j, k)) == EMPTY:
-            dirichlet = 1
+            pinned = 1
         if cell_type_at(types, wp.vec3i(i, j - 1 + 2 * s, k)) == EMPTY:
-            dirichlet = 1
+            pinned = 1
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
         for s in range(2):
             if cell_type_at(types, wp.vec3i(i, j, k - 1 + 2 * s)) == EMPTY:
-                dirichlet = 1
-    div = div / dx
-    phi = cell_volume[i, j, k] * inv_dx2 / dx
-    target = volume_correction * wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0) / dt
-    diag[i, j, k] = d * inv_dx2
-    rhs[i, j, k] = (target - div) / dt
+                pinned = 1
+    b = -div / (dx * dt)
+    extra = float(0.0)
+    if two_phase != 0 and phase[i, j, k] == PHASE_GAS:
+        vg = gas_volume[i, j, k]
+        if vg > 0.0:
+            extra = gas_kv[i, j, k] / vg / (dt * dt)
+            b += extra * gas_pv[i, j, k] / vg
+            if extra > 0.0:
+                pinned = 1
+    else:
+        phi = liq_volume[i, j, k] * inv_dx2 / dx
+        b += volume_correction * wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0) / (dt * dt)
+    diag[i, j, k] = d * inv_dx2 + extra
+    extra_diag[i, j, k] = extra
+    rhs[i, j, k] = b
     wp.atomic_add(counters, 0, 1)
-    wp.atomic_add(counters, 1, dirichlet)
+    wp.atomic_add(counters, 1, pinned)
 
 
 @wp.kernel
@@ -295,3 +426,32 @@ def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(
         vel[i, j, k] = 0.0
     elif is_solid(t_lo) and (t_lo == SOLID_NO_SLIP or t_hi == SOLID_NO_SLIP):
         vel[i, j, k] = 0.0
+
+
+@wp.kernel
+def vent_exposed_gas(
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    pmass: wp.array(dtype=float),
+    types: wp.array3d(dtype=wp.int32),
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    active: wp.array(dtype=wp.int32),
+    vented_mass: wp.array(dtype=wp.float64),
+):
+    """Gas that reaches the atmosphere (an empty cell or a cell beside one) joins it: the particle
+    is retired and its mass booked as vented, so gas mass stays exactly accounted for."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    q = (x[p] - wp.vec3(origin)) / dx
+    c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+    exposed = cell_type_at(types, c) == EMPTY
+    for a in range(dim):
+        for s in range(2):
+            if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
+                exposed = True
+    if exposed:
+        active[p] = 0
+        wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))

@@ -27,7 +27,12 @@ from .seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
 WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
-MATERIAL_KINDS = ("liquid",)  # add "gas", "foam" here when the solver supports them
+MATERIAL_KINDS = ("liquid", "gas")  # add "foam" here when the solver supports it
+GAS_LAWS = ("isothermal", "adiabatic", "incompressible")  # p = B rho, p ~ rho^gamma, density ratio only
+INTERFACES = ("sharp", "baseline")  # ghost-fluid gas-liquid faces, or the published "any gas particle" cells
+# Per-kind defaults: water, and air at 20 C and 1 atm.
+KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
+                 "gas": {"density": 1.2, "color": (0.92, 0.95, 1.0), "eos": "isothermal"}}
 PRECONDITIONERS = ("jacobi", "none")
 OUTPUT_FORMATS = ("instancer", "points", "both")
 UP_AXES = ("Y", "Z")
@@ -133,6 +138,7 @@ class Domain:
     cell_size: float
     gravity: tuple[float, ...] | None = None
     walls: dict[str, str] | str = "free_slip"
+    ambient_pressure: float = 101325.0  # Pa: the air outside the liquid, and gas at its rest density
 
     @property
     def dim(self) -> int:
@@ -173,6 +179,7 @@ class Domain:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
         self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, _dim_why(dim))
         self.walls = self._resolve_walls(c, dim)
+        self.ambient_pressure = c.number(f"{t}.ambient_pressure", self.ambient_pressure, gt=0)
 
     def _resolve_walls(self, c, dim):
         keys = WALL_KEYS[: 2 * dim]
@@ -193,16 +200,30 @@ class Domain:
 class Material:
     name: str
     kind: str = "liquid"
-    density: float = 1000.0
-    color: tuple[float, float, float] = (0.2, 0.45, 0.9)
+    density: float | None = None  # kg/m^3 (gas: at the ambient pressure); None -> per-kind default
+    color: tuple[float, float, float] | None = None
+    eos: str | None = None  # gas only: isothermal (default) | adiabatic | incompressible
+    gamma: float = 1.4  # adiabatic index, used by eos = "adiabatic"
+
+    @property
+    def is_gas(self) -> bool:
+        return self.kind == "gas"
 
     def _validate(self, c: _Checker, key):
         t = f"[materials.{key}]"
         if self.name != key:
             c.fail(f"{t}.name", self.name, f"must equal its key '{key}' in Scene.materials")
         self.kind = c.choice(f"{t}.kind", self.kind, MATERIAL_KINDS)
-        self.density = c.number(f"{t}.density", self.density, gt=0)
-        self.color = c.vector(f"{t}.color", self.color, 3, " (red, green, blue)", ge=0, le=1)
+        defaults = KIND_DEFAULTS[self.kind]
+        self.density = c.number(f"{t}.density", defaults["density"] if self.density is None else self.density, gt=0)
+        self.color = c.vector(f"{t}.color", defaults["color"] if self.color is None else self.color, 3,
+                              " (red, green, blue)", ge=0, le=1)
+        if self.kind == "gas":
+            self.eos = c.choice(f"{t}.eos", defaults["eos"] if self.eos is None else self.eos, GAS_LAWS)
+            self.gamma = c.number(f"{t}.gamma", self.gamma, gt=1)
+        elif self.eos is not None:
+            c.fail(f"{t}.eos", self.eos, f"only gas materials have an equation of state; remove it or set "
+                                         f"{t}.kind = \"gas\"")
 
 
 class _Shape:
@@ -329,6 +350,7 @@ class SolverSettings:
     cg_tolerance: float = 1e-5
     cg_max_iterations: int = 2000
     preconditioner: str = "jacobi"
+    interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
     volume_correction: float = 0.3  # share of a cell's over-fill (beyond seeding noise) undone per step
     seed: int = 0
 
@@ -344,6 +366,7 @@ class SolverSettings:
         self.cg_tolerance = c.number(f"{t}.cg_tolerance", self.cg_tolerance, gt=0, lt=1)
         self.cg_max_iterations = c.number(f"{t}.cg_max_iterations", self.cg_max_iterations, ge=1, whole=True)
         self.preconditioner = c.choice(f"{t}.preconditioner", self.preconditioner, PRECONDITIONERS)
+        self.interface = c.choice(f"{t}.interface", self.interface, INTERFACES)
         self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, whole=True)
 

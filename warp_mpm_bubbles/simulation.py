@@ -3,10 +3,12 @@
 One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid):
 
     p2g       particles -> face momenta and masses, cell mass/volume, particle count per cell
-    grid      u* = p/m + dt g, cell types, walls, face densities, pressure system
-    pressure  PCG solve, u = u* - dt/rho grad p
+              (+ gas mass, volume, pressure and compressibility per cell when the scene has gas)
+    grid      u* = p/m + dt g, cell types (+ which are gas), walls, face densities, the system
+    pressure  PCG solve of the one two-phase system, u = u* - dt/rho grad p
     extend    extrapolate u past the liquid, enforce walls
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
+    vent      (gas only) gas reaching the atmosphere leaves the simulation, its mass booked
 
 The time step follows the CFL limit and lands exactly on frame times. Inside a step the host reads
 only scalars (CG reductions, counters, the maximum particle speed).
@@ -21,13 +23,15 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
-from .grid import MacGrid
-from .pressure import PressureSolver, SolveInfo
+from .grid import PHASE_GAS, PHASE_LIQUID, MacGrid
+from .pressure import PressureSolver, PressureSystem, SolveInfo
+from .scene import INTERFACES
 from .seeding import seed_particles
 from .timing import StageTimer
-from .transfer_kernels import g2p_advect, p2g
+from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2g_gas
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
+GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
 
 
 @dataclass
@@ -66,18 +70,26 @@ class Simulation:
     # ----------------------------------------------------------------------------------- state
     def _init_particles(self):
         seeds = seed_particles(self.scene)
-        densities = np.array([m.density for m in self.scene.materials.values()], dtype=np.float32)
         n = len(seeds["positions"])
         self.num_particles = n
         self.ids = np.arange(n, dtype=np.int64)  # stable: particles are never reordered
         self.material = seeds["material"].astype(np.int32)
+        materials = list(self.scene.materials.values())
+        per_material = lambda f, dtype: np.array([f(m) for m in materials], dtype=dtype)[self.material]  # noqa: E731
+        phase = per_material(lambda m: PHASE_GAS if m.is_gas else PHASE_LIQUID, np.int32)
+        self.has_gas = bool((phase == PHASE_GAS).any())  # gas stages run only when the scene has gas
         arr = lambda a, dtype: wp.array(a, dtype=dtype, device=self.device)  # noqa: E731
         self.x = arr(seeds["positions"], wp.vec3)
         self.v = arr(seeds["velocities"], wp.vec3)
         self.C = wp.zeros(n, dtype=wp.mat33, device=self.device)
         self.vol0 = arr(seeds["volume"], float)
-        self.mass = arr(densities[self.material] * seeds["volume"], float)
+        self.mass = arr(per_material(lambda m: m.density, np.float32) * seeds["volume"], float)
         self.J = arr(np.ones(n, dtype=np.float32), float)
+        self.phase = arr(phase, wp.int32)
+        self.active = arr(np.ones(n, dtype=np.int32), wp.int32)
+        self.gas_law = arr(per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32), wp.int32)
+        self.gas_gamma = arr(per_material(lambda m: m.gamma, np.float32), float)
+        self.vented_mass = wp.zeros(1, dtype=wp.float64, device=self.device)
 
     def _init_grid(self):
         g, dev = self.grid, self.device
@@ -85,9 +97,14 @@ class Simulation:
         cells = lambda dtype=float: wp.zeros(g.cells, dtype=dtype, device=dev)  # noqa: E731
         self.mom, self.face_mass, self.vel, self.inv_rho = faces(), faces(), faces(), faces()
         self.vel_tmp, self.valid, self.valid_tmp = faces(), faces(wp.int32), faces(wp.int32)
-        self.cell_mass, self.cell_volume = cells(), cells()
-        self.cell_count, self.types = cells(wp.int32), cells(wp.int32)
+        self.liq_mass, self.liq_volume = cells(), cells()
+        self.cell_count, self.types, self.phase_cells = cells(wp.int32), cells(wp.int32), cells(wp.int32)
+        # Gas state per cell; a liquid-only scene gets one-cell placeholders that no kernel reads.
+        gas_cells = cells if self.has_gas else (lambda dtype=float: wp.zeros((1, 1, 1), dtype=dtype, device=dev))
+        self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv = gas_cells(), gas_cells(), gas_cells(), gas_cells()
+        self.gas_count = gas_cells(wp.int32)
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
+        self.extra_diag = cells()  # kappa/dt^2 of gas cells
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed = wp.zeros(1, dtype=float, device=dev)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, dev)
@@ -98,6 +115,7 @@ class Simulation:
         self._domain_hi = wp.vec3(*g.domain_size)
         gravity = tuple(self.scene.domain.gravity) + (0.0,) * (3 - g.dim)
         self._gravity = tuple(float(a) for a in gravity)
+        self._interface = INTERFACES.index(self.scene.solver.interface)
 
     def _launch(self, kernel, dim, inputs):
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
@@ -105,18 +123,29 @@ class Simulation:
     # ------------------------------------------------------------------------------ the step
     def _particles_to_grid(self):
         g = self.grid
-        for arr in (*self.mom, *self.face_mass, self.cell_mass, self.cell_volume, self.cell_count):
+        for arr in (*self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count):
             arr.zero_()
         self._launch(
             p2g,
             self.num_particles,
-            [self.x, self.v, self.C, self.mass, self.vol0, self._origin, g.dx, g.dim,
-             *self.mom, *self.face_mass, self.cell_mass, self.cell_volume, self.cell_count],
+            [self.x, self.v, self.C, self.mass, self.vol0, self.phase, self.active, self._origin, g.dx, g.dim,
+             *self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count],
         )
+        if self.has_gas:
+            for arr in (self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv, self.gas_count):
+                arr.zero_()
+            self._launch(
+                p2g_gas,
+                self.num_particles,
+                [self.x, self.mass, self.vol0, self.J, self.phase, self.active, self.gas_law, self.gas_gamma,
+                 self.scene.domain.ambient_pressure, self._origin, g.dx, g.dim,
+                 self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv, self.gas_count],
+            )
 
     def step(self, dt: float):
         g = self.grid
         settings = self.scene.solver
+        two_phase = int(self.has_gas)
         with self.timer("p2g"):
             self._particles_to_grid()
         with self.timer("grid"):
@@ -124,22 +153,28 @@ class Simulation:
                 self._launch(gk.momentum_to_velocity, g.face_shape(a),
                              [self.mom[a], self.face_mass[a], self._gravity[a], dt, self.vel[a]])
             self._launch(gk.classify_cells, g.cells,
-                         [self.cell_count, wp.vec3i(*g.ghost), wp.vec3i(*g.interior),
-                          self._wall_lo, self._wall_hi, self.types])
+                         [self.cell_count, self.liq_volume, self.gas_volume, two_phase, 1.0 / g.dx**3,
+                          wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self._wall_lo, self._wall_hi, self.types])
+            if self.has_gas:
+                self._launch(gk.classify_phases, g.cells,
+                             [self.types, self.gas_count, self.liq_volume, self.gas_volume, self._interface,
+                              self.phase_cells])
             for a in g.axes:
                 self._launch(gk.zero_solid_faces, g.face_shape(a), [self.types, a, self.vel[a]])
                 self._launch(gk.face_inverse_density, g.face_shape(a),
-                             [self.types, self.cell_mass, self.cell_volume, a, 1.0 / g.dx**3, self.inv_rho[a]])
+                             [self.types, self.phase_cells, self.liq_mass, self.liq_volume, self.gas_mass,
+                              self.gas_volume, two_phase, self._interface, a, 1.0 / g.dx**3, self.inv_rho[a]])
             self.counters.zero_()
             self._launch(gk.pressure_diagonal_and_rhs, g.cells,
-                         [self.types, *self.inv_rho, *self.vel, self.cell_volume, g.dx, dt, g.dim,
-                          settings.volume_correction, self.diag, self.rhs, self.counters])
+                         [self.types, self.phase_cells, *self.inv_rho, *self.vel, self.liq_volume, self.gas_volume,
+                          self.gas_pv, self.gas_kv, two_phase, g.dx, dt, g.dim, settings.volume_correction,
+                          self.diag, self.extra_diag, self.rhs, self.counters])
         with self.timer("pressure"):
-            n_fluid, n_dirichlet = (int(c) for c in self.counters.numpy())
+            n_fluid, n_pinned = (int(c) for c in self.counters.numpy())
             info = self.solver.solve(
-                (self.types, self.diag, self.inv_rho), self.rhs, self.pressure,
+                PressureSystem(self.types, tuple(self.inv_rho), self.diag, self.extra_diag), self.rhs, self.pressure,
                 tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
-                jacobi=settings.preconditioner == "jacobi", singular=n_dirichlet == 0, n_fluid=n_fluid,
+                jacobi=settings.preconditioner == "jacobi", singular=n_pinned == 0, n_fluid=n_fluid,
             )
             self.stats.record(info)
             for a in g.axes:
@@ -157,8 +192,13 @@ class Simulation:
             self.max_speed.zero_()
             self._launch(g2p_advect, self.num_particles,
                          [*self.vel, self._origin, g.dx, g.dim, dt, self._domain_hi,
-                          self.x, self.v, self.C, self.J, self.max_speed])
+                          self.x, self.v, self.C, self.J, self.active, self.max_speed])
             self._max_speed = float(self.max_speed.numpy()[0])
+        if self.has_gas:
+            with self.timer("vent"):
+                self._launch(gk.vent_exposed_gas, self.num_particles,
+                             [self.x, self.phase, self.mass, self.types, self._origin, g.dx, g.dim,
+                              self.active, self.vented_mass])
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 
@@ -191,15 +231,31 @@ class Simulation:
         self.advance_to(self.frame * self.frame_dt)
 
     # ------------------------------------------------------------------------------ read-out
-    def particles_numpy(self) -> dict[str, np.ndarray]:
-        """Copies of the particle state (on the CPU device .numpy() is a view that the next step changes)."""
+    def particles_numpy(self, include_retired: bool = False) -> dict[str, np.ndarray]:
+        """Copies of the state of the active particles (vented gas is retired), or of all of them.
+
+        Copies: on the CPU device .numpy() is a view that the next step changes.
+        """
+        keep = slice(None) if include_retired else self.active.numpy() == 1
         return {
-            "positions": self.x.numpy().copy(),
-            "velocities": self.v.numpy().copy(),
-            "ids": self.ids.copy(),
-            "material": self.material.copy(),
-            "J": self.J.numpy().copy(),
+            "positions": self.x.numpy()[keep].copy(),
+            "velocities": self.v.numpy()[keep].copy(),
+            "ids": self.ids[keep].copy(),
+            "material": self.material[keep].copy(),
+            "J": self.J.numpy()[keep].copy(),
+            "mass": self.mass.numpy()[keep].copy(),
+            "volume": (self.vol0.numpy() * self.J.numpy())[keep],
         }
+
+    def gas_budget(self) -> dict[str, float]:
+        """Gas mass in the liquid, vented to the atmosphere, and their sum (conserved exactly)."""
+        gas = self.phase.numpy() == PHASE_GAS
+        active = self.active.numpy() == 1
+        mass = self.mass.numpy().astype(np.float64)
+        inside = float(mass[gas & active].sum())
+        vented = float(self.vented_mass.numpy()[0])
+        return {"inside": inside, "vented": vented, "total": inside + vented,
+                "volume": float((self.vol0.numpy() * self.J.numpy())[gas & active].sum())}
 
     def pressure_numpy(self) -> np.ndarray:
         """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""
@@ -216,5 +272,5 @@ class Simulation:
         """
         self._particles_to_grid()
         cell_vol = self.grid.dx ** 3
-        phi = self.cell_volume.numpy() / cell_vol
+        phi = self.liq_volume.numpy() / cell_vol
         return float(np.minimum(phi, 1.0).sum() * cell_vol)

@@ -7,7 +7,13 @@ the gradient of velocity component ``a``. In 2D the stencil collapses to one nod
 
 import warp as wp
 
+from .grid import PHASE_GAS, PHASE_LIQUID
+
 wp.set_module_options({"enable_backward": False})
+
+# Gas laws per particle (0: liquid, or a gas with a fixed density: no pressure from compression).
+GAS_ISOTHERMAL = 1
+GAS_ADIABATIC = 2
 
 # Stagger offsets in cell units: where sample (0,0,0) of each grid sits relative to the grid origin.
 U_OFFSET = wp.constant(wp.vec3(0.0, 0.5, 0.5))
@@ -104,6 +110,8 @@ def p2g(
     C: wp.array(dtype=wp.mat33),
     pmass: wp.array(dtype=float),
     pvol0: wp.array(dtype=float),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
     origin: wp.vec3,
     dx: float,
     dim: int,
@@ -117,7 +125,10 @@ def p2g(
     cell_volume: wp.array3d(dtype=float),
     cell_count: wp.array3d(dtype=wp.int32),
 ):
+    """Momentum of every active particle; cell mass and rest volume of the liquid; particle counts."""
     p = wp.tid()
+    if active[p] == 0:
+        return
     xp = x[p]
     inv_dx = 1.0 / dx
     m = pmass[p]
@@ -127,9 +138,74 @@ def p2g(
     splat_component(mom_v, mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx, m, vp[1], Cp[1])
     if dim == 3:
         splat_component(mom_w, mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx, m, vp[2], Cp[2])
-    splat_cell(cell_mass, cell_volume, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, m, pvol0[p])
+    if phase[p] == PHASE_LIQUID:
+        splat_cell(cell_mass, cell_volume, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, m, pvol0[p])
     c = (xp - origin) * inv_dx
     wp.atomic_add(cell_count, int(wp.floor(c[0])), int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
+
+
+@wp.func
+def gas_pressure(law: int, J: float, gamma: float, p_atm: float):
+    """Gauge pressure of gas compressed to volume ratio J from rest at p_atm."""
+    if law == GAS_ISOTHERMAL:
+        return p_atm * (1.0 / J - 1.0)
+    if law == GAS_ADIABATIC:
+        return p_atm * (wp.pow(J, -gamma) - 1.0)
+    return 0.0
+
+
+@wp.func
+def gas_compressibility(law: int, J: float, gamma: float, p_atm: float):
+    """kappa = 1 / bulk modulus: 1/p for isothermal gas, 1/(gamma p) adiabatic, 0 incompressible."""
+    p_abs = p_atm + gas_pressure(law, J, gamma, p_atm)
+    if law == GAS_ISOTHERMAL:
+        return 1.0 / p_abs
+    if law == GAS_ADIABATIC:
+        return 1.0 / (gamma * p_abs)
+    return 0.0
+
+
+@wp.kernel
+def p2g_gas(
+    x: wp.array(dtype=wp.vec3),
+    pmass: wp.array(dtype=float),
+    pvol0: wp.array(dtype=float),
+    J: wp.array(dtype=float),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    law: wp.array(dtype=wp.int32),
+    gamma: wp.array(dtype=float),
+    p_atm: float,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    gas_mass: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    gas_pv: wp.array3d(dtype=float),
+    gas_kv: wp.array3d(dtype=float),
+    gas_count: wp.array3d(dtype=wp.int32),
+):
+    """Gas cell state, volume-weighted: mass, current volume V0 J, p V and kappa V (runs only with gas)."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    xp = x[p]
+    inv_dx = 1.0 / dx
+    vol = pvol0[p] * J[p]
+    pg = gas_pressure(law[p], J[p], gamma[p], p_atm)
+    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)
+    s = make_stencil(grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim)
+    for i in range(3):
+        for j in range(3):
+            for k in range(s.nk):
+                w = s.wx[i] * s.wy[j] * s.wz[k]
+                n = s.base + wp.vec3i(i, j, k)
+                wp.atomic_add(gas_mass, n[0], n[1], n[2], w * pmass[p])
+                wp.atomic_add(gas_volume, n[0], n[1], n[2], w * vol)
+                wp.atomic_add(gas_pv, n[0], n[1], n[2], w * vol * pg)
+                wp.atomic_add(gas_kv, n[0], n[1], n[2], w * vol * kappa)
+    c = (xp - origin) * inv_dx
+    wp.atomic_add(gas_count, int(wp.floor(c[0])), int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
 
 
 @wp.func
@@ -163,10 +239,13 @@ def g2p_advect(
     v: wp.array(dtype=wp.vec3),
     C: wp.array(dtype=wp.mat33),
     J: wp.array(dtype=float),
+    active: wp.array(dtype=wp.int32),
     max_speed: wp.array(dtype=float),
 ):
     """Gather velocity and affine matrix, update J, move the particle and keep it in the domain."""
     p = wp.tid()
+    if active[p] == 0:
+        return
     xp = x[p]
     inv_dx = 1.0 / dx
     gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
@@ -178,7 +257,7 @@ def g2p_advect(
     Cp = wp.matrix_from_rows(
         wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]), wp.vec3(gw[1], gw[2], gw[3])
     )
-    J[p] = J[p] * (1.0 + dt * wp.trace(Cp))
+    J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
 
     # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
     xn = xp + dt * vp

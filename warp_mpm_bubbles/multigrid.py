@@ -1,0 +1,381 @@
+"""Multigrid V-cycle preconditioner for the pressure system (after McAdams, Sifakis & Teran 2010).
+
+A matrix-free, symmetric positive definite approximation of A^-1 for
+:class:`~warp_mpm_bubbles.pressure.PressureSystem`, rebuilt cheaply at every solve because the
+cell types and face weights change every step. Choices (measured in benchmarks/pressure_solver.py):
+
+- Levels: coarsen by 2 along the simulated axes (ceil(n/2): odd sizes and non-powers of two are
+  fine) until at most MAX_COARSEST_CELLS cells are left. Coarse cell C has the fine children
+  2C + {0,1}^dim; it is an unknown (FLUID) iff any child is.
+- Transfers: piecewise-constant prolongation onto the fluid children, restriction its transpose
+  (the sum over fluid children). Constant interpolation never mixes values across a 1000:1
+  density jump, so the hierarchy stays robust to jumps (as in aggregation multigrid); linear
+  interpolation would smear the liquid's pressure gradient into the gas.
+- Coarse operators, built from the fine level by one kernel per level: the Galerkin product
+  P^T A P, whose coupling across a coarse face is the sum of the fine couplings crossing it and
+  whose compressibility term (extra_diag) is the sum of the children's, with the Laplacian part
+  (couplings and Dirichlet terms) scaled by COARSE_LAPLACIAN_SCALE = 1/2. Piecewise-constant
+  Galerkin is known to be twice too stiff for the Laplacian (Braess 1981): the factor 1/2 makes
+  it the operator re-discretised on the coarse grid with averaged face weights, and halves the
+  CG iterations measured here; the extra_diag term is a mass term, which constants represent
+  exactly, so it is not scaled.
+- Dirichlet (EMPTY) cells stay p = 0 at every level: a fine face from a fluid cell to an empty
+  cell (with its ghost-fluid 1/theta) becomes a diagonal term of the coarse parent, so the free
+  surface keeps its position and strength on every level; no coarse cell is labelled Dirichlet.
+- Smoother: red-black Gauss-Seidel, SMOOTHING_SWEEPS (red, black) sweeps going down and the same
+  number of (black, red) sweeps coming up, so the V-cycle is a symmetric operator; Gauss-Seidel
+  converges in the energy norm, so it is positive definite too.
+- Coarsest level: dense Cholesky in float64 by a single thread (a few dozen unknowns). A pivot
+  below PIVOT_TOLERANCE of its diagonal (the constant mode of a closed tank) is dropped, which
+  gives a symmetric positive semi-definite pseudo-inverse.
+
+All arrays of all levels are allocated once per grid. Per V-cycle: 4 smoothing launches, one
+restriction and one prolongation per level, plus one coarsest solve; no host loops over cells.
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from .grid import EMPTY, FLUID
+
+wp.set_module_options({"enable_backward": False})
+
+MAX_COARSEST_CELLS = 64
+SMOOTHING_SWEEPS = 2
+COARSE_LAPLACIAN_SCALE = 0.5
+PIVOT_TOLERANCE = 1e-9
+
+
+@wp.struct
+class Level:
+    """One level's operator: (A x)_c = diag_c x_c - scale * sum over faces f of w_f x_n(f), n active.
+
+    On the finest level the arrays are the PressureSystem's (w = inv_rho, scale = 1/dx^2, Dirichlet
+    terms derived from the faces to EMPTY cells); on coarse ones scale = 1 and `dirichlet` holds them.
+    """
+
+    types: wp.array3d(dtype=wp.int32)
+    w_u: wp.array3d(dtype=float)
+    w_v: wp.array3d(dtype=float)
+    w_w: wp.array3d(dtype=float)
+    diag: wp.array3d(dtype=float)
+    extra: wp.array3d(dtype=float)
+    dirichlet: wp.array3d(dtype=float)
+    scale: float
+    dim: int
+    finest: int
+
+
+@wp.func
+def unit(axis: int):
+    return wp.vec3i(int(axis == 0), int(axis == 1), int(axis == 2))
+
+
+@wp.func
+def type_at(L: Level, c: wp.vec3i):
+    """Cell type, or -1 outside the arrays."""
+    if c[0] < 0 or c[1] < 0 or c[2] < 0:
+        return -1
+    if c[0] >= L.types.shape[0] or c[1] >= L.types.shape[1] or c[2] >= L.types.shape[2]:
+        return -1
+    return L.types[c[0], c[1], c[2]]
+
+
+@wp.func
+def weight(L: Level, axis: int, f: wp.vec3i):
+    if axis == 0:
+        return L.w_u[f[0], f[1], f[2]]
+    if axis == 1:
+        return L.w_v[f[0], f[1], f[2]]
+    return L.w_w[f[0], f[1], f[2]]
+
+
+@wp.func
+def at(x: wp.array3d(dtype=float), c: wp.vec3i):
+    return x[c[0], c[1], c[2]]
+
+
+@wp.func
+def neighbour_sum(L: Level, x: wp.array3d(dtype=float), i: int, j: int, k: int):
+    """sum of w_f x_n over the faces of cell (i, j, k).
+
+    Relies on x = 0 on every cell that is not an unknown (so faces to Dirichlet cells drop out) and
+    on w = 0 on the faces at the arrays' edges (so the clamped index past an edge drops out).
+    """
+    nx, ny, nz = L.types.shape[0], L.types.shape[1], L.types.shape[2]
+    s = L.w_u[i, j, k] * x[wp.max(i - 1, 0), j, k] + L.w_u[i + 1, j, k] * x[wp.min(i + 1, nx - 1), j, k]
+    s += L.w_v[i, j, k] * x[i, wp.max(j - 1, 0), k] + L.w_v[i, j + 1, k] * x[i, wp.min(j + 1, ny - 1), k]
+    if L.dim == 3:
+        s += L.w_w[i, j, k] * x[i, j, wp.max(k - 1, 0)] + L.w_w[i, j, k + 1] * x[i, j, wp.min(k + 1, nz - 1)]
+    return s
+
+
+@wp.func
+def residual(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), c: wp.vec3i):
+    return at(b, c) - at(L.diag, c) * at(x, c) + L.scale * neighbour_sum(L, x, c[0], c[1], c[2])
+
+
+@wp.func
+def dirichlet_term(L: Level, c: wp.vec3i):
+    """Diagonal part of cell c from its Dirichlet neighbours."""
+    if L.finest == 0:
+        return at(L.dirichlet, c)
+    s = float(0.0)
+    for a in range(L.dim):
+        e = unit(a)
+        if type_at(L, c - e) == EMPTY:
+            s += weight(L, a, c)
+        if type_at(L, c + e) == EMPTY:
+            s += weight(L, a, c + e)
+    return L.scale * s
+
+
+@wp.func
+def coarse_coupling(F: Level, axis: int, f0: wp.vec3i):
+    """Sum of the fine couplings over the 2^(dim-1) fine faces of the coarse face starting at face f0."""
+    s = float(0.0)
+    e = unit(axis)
+    for t in range(4):
+        o = (t % 2) * unit((axis + 1) % 3) + (t // 2) * unit((axis + 2) % 3)
+        f = f0 + o
+        if F.dim == 3 or o[2] == 0:
+            if type_at(F, f - e) == FLUID:
+                if type_at(F, f) == FLUID:
+                    s += weight(F, axis, f)
+    return F.scale * s
+
+
+@wp.kernel
+def build_coarse(F: Level, C: Level, laplacian_scale: float):
+    """Coarse cell C's row of the operator from its fine children (one thread per coarse cell)."""
+    i, j, k = wp.tid()
+    cc = wp.vec3i(i, j, k)
+    nz = 1
+    if F.dim == 3:
+        nz = 2
+    extra = float(0.0)
+    dirichlet = float(0.0)
+    active = int(0)
+    for ox in range(2):
+        for oy in range(2):
+            for oz in range(nz):
+                c = 2 * cc + wp.vec3i(ox, oy, oz)
+                if type_at(F, c) == FLUID:
+                    active = 1
+                    extra += at(F.extra, c)
+                    dirichlet += dirichlet_term(F, c)
+    dirichlet *= laplacian_scale
+    diag = extra + dirichlet
+    for a in range(F.dim):
+        e = unit(a)
+        lo = float(0.0)
+        if active == 1:
+            lo = laplacian_scale * coarse_coupling(F, a, 2 * cc)
+            diag += lo + laplacian_scale * coarse_coupling(F, a, 2 * cc + 2 * e)
+        if a == 0:
+            C.w_u[i, j, k] = lo
+        elif a == 1:
+            C.w_v[i, j, k] = lo
+        else:
+            C.w_w[i, j, k] = lo
+    if active == 0:
+        C.types[i, j, k] = EMPTY
+        diag = 1.0
+    else:
+        C.types[i, j, k] = FLUID
+    C.diag[i, j, k] = diag
+    C.extra[i, j, k] = extra
+    C.dirichlet[i, j, k] = dirichlet
+
+
+@wp.kernel
+def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
+    """One colour of a red-black Gauss-Seidel sweep on A x = b; thread (h, j, k) is cell (i, j, k) of that
+    colour with i = 2 h or 2 h + 1."""
+    h, j, k = wp.tid()
+    i = 2 * h + (j + k + color) % 2
+    if i >= L.types.shape[0]:
+        return
+    if L.types[i, j, k] != FLUID:
+        return
+    d = L.diag[i, j, k]
+    if d > 0.0:
+        x[i, j, k] = (b[i, j, k] + L.scale * neighbour_sum(L, x, i, j, k)) / d
+
+
+@wp.kernel
+def restrict_residual(
+    F: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+    b_coarse: wp.array3d(dtype=float), x_coarse: wp.array3d(dtype=float),
+):
+    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0."""
+    i, j, k = wp.tid()
+    cc = wp.vec3i(i, j, k)
+    nz = 1
+    if F.dim == 3:
+        nz = 2
+    s = float(0.0)
+    for ox in range(2):
+        for oy in range(2):
+            for oz in range(nz):
+                c = 2 * cc + wp.vec3i(ox, oy, oz)
+                if type_at(F, c) == FLUID:
+                    s += residual(F, b, x, c)
+    b_coarse[i, j, k] = s
+    x_coarse[i, j, k] = 0.0
+
+
+@wp.kernel
+def prolongate(types: wp.array3d(dtype=wp.int32), x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+    i, j, k = wp.tid()
+    if types[i, j, k] == FLUID:
+        x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]
+
+
+@wp.func
+def dense_index(L: Level, c: wp.vec3i):
+    return (c[0] * L.types.shape[1] + c[1]) * L.types.shape[2] + c[2]
+
+
+@wp.kernel
+def factor_coarsest(L: Level, A: wp.array2d(dtype=wp.float64), inv_pivot: wp.array(dtype=wp.float64)):
+    """Assemble the coarsest operator densely (in float64) and factor it, A = L L^T in place (one thread)."""
+    n = A.shape[0]
+    for r in range(n):
+        for c in range(n):
+            A[r, c] = wp.float64(0.0)
+    for i in range(L.types.shape[0]):
+        for j in range(L.types.shape[1]):
+            for k in range(L.types.shape[2]):
+                cc = wp.vec3i(i, j, k)
+                r = dense_index(L, cc)
+                if L.types[i, j, k] != FLUID:
+                    A[r, r] = wp.float64(1.0)
+                else:
+                    d = wp.float64(at(L.extra, cc)) + wp.float64(dirichlet_term(L, cc))
+                    for a in range(L.dim):
+                        e = unit(a)
+                        if type_at(L, cc - e) == FLUID:
+                            w = wp.float64(L.scale * weight(L, a, cc))
+                            A[r, dense_index(L, cc - e)] = -w
+                            d += w
+                        if type_at(L, cc + e) == FLUID:
+                            w = wp.float64(L.scale * weight(L, a, cc + e))
+                            A[r, dense_index(L, cc + e)] = -w
+                            d += w
+                    A[r, r] = d
+    for j in range(n):
+        s = A[j, j]
+        for m in range(j):
+            s -= A[j, m] * A[j, m]
+        if s > wp.float64(PIVOT_TOLERANCE) * A[j, j]:
+            ljj = wp.sqrt(s)
+            A[j, j] = ljj
+            inv_pivot[j] = wp.float64(1.0) / ljj
+            for r in range(j + 1, n):
+                t = A[r, j]
+                for m in range(j):
+                    t -= A[r, m] * A[j, m]
+                A[r, j] = t / ljj
+        else:  # (near-)null direction: drop it (pseudo-inverse)
+            A[j, j] = wp.float64(0.0)
+            inv_pivot[j] = wp.float64(0.0)
+            for r in range(j + 1, n):
+                A[r, j] = wp.float64(0.0)
+
+
+@wp.kernel
+def solve_coarsest(
+    L: Level, A: wp.array2d(dtype=wp.float64), inv_pivot: wp.array(dtype=wp.float64),
+    b: wp.array3d(dtype=float), y: wp.array(dtype=wp.float64), x: wp.array3d(dtype=float),
+):
+    """x = L^-T L^-1 b with the factor of factor_coarsest (one thread)."""
+    n = A.shape[0]
+    nyz = L.types.shape[1] * L.types.shape[2]
+    nz = L.types.shape[2]
+    for r in range(n):
+        t = wp.float64(b[r // nyz, (r // nz) % L.types.shape[1], r % nz])
+        for m in range(r):
+            t -= A[r, m] * y[m]
+        y[r] = t * inv_pivot[r]
+    for q in range(n):
+        r = n - 1 - q
+        t = y[r]
+        for m in range(r + 1, n):
+            t -= A[m, r] * y[m]
+        y[r] = t * inv_pivot[r]
+        x[r // nyz, (r // nz) % L.types.shape[1], r % nz] = float(y[r])
+
+
+def level_shapes(shape, dim: int) -> list[tuple[int, int, int]]:
+    """Finest to coarsest: halve (rounding up) the simulated axes until at most MAX_COARSEST_CELLS."""
+    shapes = [tuple(shape)]
+    while math.prod(shapes[-1]) > MAX_COARSEST_CELLS and max(shapes[-1][:dim]) > 1:
+        s = shapes[-1]
+        shapes.append(tuple((n + 1) // 2 if a < dim else n for a, n in enumerate(s)))
+    return shapes
+
+
+class MultigridPreconditioner:
+    """z = M^-1 r by one V-cycle; call build(system) once per solve before apply()."""
+
+    def __init__(self, shape, dim: int, dx: float, device, *, sweeps: int = SMOOTHING_SWEEPS,
+                 laplacian_scale: float = COARSE_LAPLACIAN_SCALE):
+        self.dim, self.device = dim, device
+        self.inv_dx2 = 1.0 / (dx * dx)
+        self.sweeps, self.laplacian_scale = sweeps, laplacian_scale
+        self.shapes = level_shapes(shape, dim)
+        self.levels = [None]  # the finest Level wraps the system's arrays, set by build()
+        self.b, self.x = [None], [None]
+        for s in self.shapes[1:]:
+            zeros = lambda sh=s, dtype=float: wp.zeros(sh, dtype=dtype, device=device)  # noqa: E731
+            L = Level()
+            L.types = zeros(dtype=wp.int32)
+            L.w_u, L.w_v, L.w_w = (zeros(tuple(n + (a == b) for b, n in enumerate(s))) for a in range(3))
+            L.diag, L.extra, L.dirichlet = zeros(), zeros(), zeros()
+            L.scale, L.dim, L.finest = 1.0, dim, 0
+            self.levels.append(L)
+            self.b.append(zeros())
+            self.x.append(zeros())
+        n = math.prod(self.shapes[-1])
+        self.factor = wp.zeros((n, n), dtype=wp.float64, device=device)
+        self.inv_pivot = wp.zeros(n, dtype=wp.float64, device=device)
+        self.y = wp.zeros(n, dtype=wp.float64, device=device)
+
+    def _launch(self, kernel, shape, inputs):
+        wp.launch(kernel, shape, inputs=inputs, device=self.device)
+
+    def _smooth(self, lvl, b, x, color):
+        s = self.shapes[lvl]
+        self._launch(smooth, ((s[0] + 1) // 2, s[1], s[2]), [self.levels[lvl], b, x, color])
+
+    def build(self, system):
+        """Wrap the fine system, build every coarse level from the one above, factor the coarsest."""
+        F = Level()
+        F.types = system.types
+        F.w_u, F.w_v, F.w_w = system.inv_rho
+        F.diag, F.extra, F.dirichlet = system.diag, system.extra_diag, system.diag  # dirichlet unused here
+        F.scale, F.dim, F.finest = self.inv_dx2, self.dim, 1
+        self.levels[0] = F
+        for lvl in range(1, len(self.levels)):
+            self._launch(build_coarse, self.shapes[lvl], [self.levels[lvl - 1], self.levels[lvl], self.laplacian_scale])
+        self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
+
+    def apply(self, r, z):
+        """z = M^-1 r (one V-cycle from z = 0); r and z are fine-level cell arrays."""
+        b, x, last = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1
+        z.zero_()
+        for lvl in range(last):
+            for _ in range(self.sweeps):
+                for color in (0, 1):
+                    self._smooth(lvl, b[lvl], x[lvl], color)
+            self._launch(restrict_residual, self.shapes[lvl + 1], [self.levels[lvl], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
+        self._launch(solve_coarsest, 1, [self.levels[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])
+        for lvl in range(last - 1, -1, -1):
+            self._launch(prolongate, self.shapes[lvl], [self.levels[lvl].types, x[lvl + 1], x[lvl]])
+            for _ in range(self.sweeps):
+                for color in (1, 0):
+                    self._smooth(lvl, b[lvl], x[lvl], color)

@@ -26,7 +26,7 @@ def test_box_count_2d():
     assert len(p["positions"]) == 4 * 5 * 5  # ppc * cells inside the box
     assert {k: (v.dtype, v.shape[1:]) for k, v in p.items()} == {
         "positions": (np.float32, (3,)), "velocities": (np.float32, (3,)),
-        "material": (np.int32, ()), "volume": (np.float32, ())}
+        "material": (np.int32, ()), "volume": (np.float32, ()), "pressure": (np.float32, ())}
 
 
 @pytest.mark.parametrize("ppc", [1, 5, 8, 27])

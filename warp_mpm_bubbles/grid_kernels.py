@@ -284,6 +284,7 @@ def pressure_diagonal_and_rhs(
     gas_pv: wp.array3d(dtype=float),
     gas_kv: wp.array3d(dtype=float),
     two_phase: int,
+    interface: int,
     dx: float,
     dt: float,
     dim: int,
@@ -327,14 +328,21 @@ def pressure_diagonal_and_rhs(
                 pinned = 1
     b = -div / (dx * dt)
     extra = float(0.0)
-    if two_phase != 0 and phase[i, j, k] == PHASE_GAS:
+    vg = float(0.0)
+    if two_phase != 0:
         vg = gas_volume[i, j, k]
-        if vg > 0.0:
-            extra = gas_kv[i, j, k] / vg / (dt * dt)
-            b += extra * gas_pv[i, j, k] / vg
-            if extra > 0.0:
-                pinned = 1
-    else:
+    if vg > 0.0 and (interface != INTERFACE_BASELINE or phase[i, j, k] == PHASE_GAS):
+        # Baseline: a gas cell is all gas. Sharp: a cell's compressibility is that of its mixture,
+        # kappa = alpha_gas kappa_gas (Wood 1930; the liquid's is ~0), so the liquid in a cell the
+        # interface crosses is not stretched as if it were gas.
+        kappa = gas_kv[i, j, k] / vg
+        if interface != INTERFACE_BASELINE:
+            kappa = kappa * vg / (vg + liq_volume[i, j, k])
+        extra = kappa / (dt * dt)
+        b += extra * gas_pv[i, j, k] / vg
+        if extra > 0.0:
+            pinned = 1
+    if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID:
         phi = liq_volume[i, j, k] * inv_dx2 / dx
         b += volume_correction * wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0) / (dt * dt)
     diag[i, j, k] = d * inv_dx2 + extra

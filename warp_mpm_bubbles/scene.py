@@ -237,7 +237,7 @@ class _Shape:
 
     def describe(self) -> str:
         parts = [f"{f.name}={_fmt(getattr(self, f.name))}" for f in fields(self)
-                 if f.name not in ("material", "velocity")]
+                 if f.name not in ("material", "velocity", "pressure")]
         return f"{self.type_name} " + " ".join(parts)
 
     def _validate(self, c: _Checker, key, scene: Scene):
@@ -248,6 +248,13 @@ class _Shape:
         self._validate_geometry(c, key, scene.domain)
         self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
         self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, _dim_why(dim))
+        if self.pressure is not None:
+            m = mats[self.material]
+            if not m.is_gas or m.eos == "incompressible":
+                c.fail(f"{key}.pressure", self.pressure, f"an initial pressure needs a compressible gas; material "
+                                                         f"'{self.material}' is {m.kind}"
+                       + (f" with eos = \"{m.eos}\"" if m.is_gas else "") + "; remove the key")
+            self.pressure = c.number(f"{key}.pressure", self.pressure, gt=-scene.domain.ambient_pressure)
         lo, hi = self.bounds()
         size = np.array(scene.domain.size)
         if (lo < -1e-9 * size).any() or (hi > size * (1 + 1e-9)).any():
@@ -262,6 +269,7 @@ class Box(_Shape):
     min: tuple
     max: tuple
     velocity: tuple | None = None
+    pressure: float | None = None  # gas only: initial gauge pressure, Pa
     type_name: ClassVar[str] = "box"
 
     def bounds(self):
@@ -286,6 +294,7 @@ class Sphere(_Shape):
     center: tuple
     radius: float
     velocity: tuple | None = None
+    pressure: float | None = None  # gas only: initial gauge pressure, Pa
     type_name: ClassVar[str] = "sphere"
 
     def bounds(self):
@@ -308,6 +317,7 @@ class Cylinder(_Shape):
     axis: str = "z"
     length: float | None = None
     velocity: tuple | None = None
+    pressure: float | None = None  # gas only: initial gauge pressure, Pa
     type_name: ClassVar[str] = "cylinder"
 
     def bounds(self):

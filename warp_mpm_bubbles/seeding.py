@@ -54,7 +54,8 @@ def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
     """Seed the scene's shapes with particles.
 
     Returns positions (N,3) float32 (2D: z = 0.5*cell_size), velocities (N,3) float32,
-    material (N,) int32 (index into list(scene.materials)) and volume (N,) float32.
+    material (N,) int32 (index into list(scene.materials)), volume (N,) float32 and the initial
+    gauge pressure (N,) float32 of gas shapes.
     Each sample takes the material and velocity of the LAST shape containing it.
     """
     scene.validate()
@@ -64,6 +65,7 @@ def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
     material_of = np.array([names.index(s.material) for s in scene.shapes], np.int32)
     velocity_of = np.zeros((len(scene.shapes), 3), np.float32)
     velocity_of[:, :dim] = [s.velocity for s in scene.shapes]
+    pressure_of = np.array([s.pressure or 0.0 for s in scene.shapes], np.float32)
 
     # Slabs no shape reaches hold no particles; skipping them changes nothing (per-slab generators).
     bounds = [s.bounds() for s in scene.shapes]
@@ -90,6 +92,7 @@ def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
         "positions": positions,
         "velocities": velocity_of[owner],
         "material": material_of[owner],
+        "pressure": pressure_of[owner],  # initial gauge pressure (gas shapes; 0 elsewhere)
         # 2D too: each particle stands for a share of a cell_size**3 cell of the one-cell-thick slab
         "volume": np.full(n, h**3 / ppc, np.float32),
     }

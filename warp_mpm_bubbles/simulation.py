@@ -82,9 +82,14 @@ class Simulation:
         self.x = arr(seeds["positions"], wp.vec3)
         self.v = arr(seeds["velocities"], wp.vec3)
         self.C = wp.zeros(n, dtype=wp.mat33, device=self.device)
-        self.vol0 = arr(seeds["volume"], float)
-        self.mass = arr(per_material(lambda m: m.density, np.float32) * seeds["volume"], float)
-        self.J = arr(np.ones(n, dtype=np.float32), float)
+        # Gas seeded at a pressure p other than ambient is compressed to J0 of its rest volume.
+        p_atm = self.scene.domain.ambient_pressure
+        gamma = per_material(lambda m: m.gamma if m.eos == "adiabatic" else 1.0, np.float64)
+        J0 = (p_atm / (p_atm + seeds["pressure"].astype(np.float64))) ** (1.0 / gamma)
+        rest_volume = seeds["volume"] / J0
+        self.vol0 = arr(rest_volume.astype(np.float32), float)
+        self.mass = arr((per_material(lambda m: m.density, np.float64) * rest_volume).astype(np.float32), float)
+        self.J = arr(J0.astype(np.float32), float)
         self.phase = arr(phase, wp.int32)
         self.active = arr(np.ones(n, dtype=np.int32), wp.int32)
         self.gas_law = arr(per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32), wp.int32)
@@ -167,7 +172,8 @@ class Simulation:
             self.counters.zero_()
             self._launch(gk.pressure_diagonal_and_rhs, g.cells,
                          [self.types, self.phase_cells, *self.inv_rho, *self.vel, self.liq_volume, self.gas_volume,
-                          self.gas_pv, self.gas_kv, two_phase, g.dx, dt, g.dim, settings.volume_correction,
+                          self.gas_pv, self.gas_kv, two_phase, self._interface, g.dx, dt, g.dim,
+                          settings.volume_correction,
                           self.diag, self.extra_diag, self.rhs, self.counters])
         with self.timer("pressure"):
             n_fluid, n_pinned = (int(c) for c in self.counters.numpy())

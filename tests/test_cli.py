@@ -105,3 +105,19 @@ def test_dam_break_example_column_falls_and_spreads(tmp_path):
     first, last = frames[0]["positions"], frames[4]["positions"]
     assert last[:, 1].max() < first[:, 1].max() - 0.01  # the column's top has fallen (> 1 cell)
     assert last[:, 0].max() > first[:, 0].max() + 0.02  # and its foot has run out along the floor
+
+
+def test_rising_bubble_example_writes_water_and_air(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    out = tmp_path / "bubble.usdc"
+    cmd = [sys.executable, str(ROOT / "examples" / "rising_bubble.py"), "--device", "cpu", "--num-frames", "1",
+           "--stage-path", str(out), "--quiet"]
+    subprocess.run(cmd, check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    stage = Usd.Stage.Open(str(out))
+    instancer = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Particles"))
+    names = [p.name for p in instancer.GetPrototypesRel().GetTargets()]
+    assert names == ["water", "air"]
+    assert stage.GetPrimAtPath("/World/ParticlePoints").IsValid()  # format = "both"
+    frame = read_frames(out)["frames"][1]
+    assert set(np.unique(frame["proto_indices"])) == {0, 1}

@@ -66,106 +66,86 @@ def make_problem(interior, dim, *, surface=None, bubble=None, dx=None, seed=0):
     return types, faces, extra, b, dx
 
 
-def dense_matrix(types, faces, extra, dx, dim):
-    """A in float64 on the fluid cells (the definition in PressureSystem's docstring), and their flat indices."""
-    fluid = types == FLUID
-    cells = np.flatnonzero(fluid)
+def dense_matrix(system, dx, dim):
+    """The solver's A (float32 coefficients: the ill-conditioned jump cases are sensitive to their
+    rounding) as a float64 dense matrix on the fluid cells, and the cells' flat indices."""
+    types = system.types.numpy()
+    cells = np.flatnonzero(types == FLUID)
     index = np.full(types.size, -1)
     index[cells] = np.arange(cells.size)
     index = index.reshape(types.shape)
-    A = np.diag(extra.ravel()[cells])
+    A = np.diag(system.diag.numpy().astype(np.float64).ravel()[cells])
     for a in range(dim):
-        w = faces[a] / dx**2
+        w = system.inv_rho[a].numpy().astype(np.float64) / dx**2
         lo = tuple(slice(0, -1) if b == a else slice(None) for b in range(3))
         hi = tuple(slice(1, None) if b == a else slice(None) for b in range(3))
         inner = tuple(slice(1, -1) if b == a else slice(None) for b in range(3))
         i_lo, i_hi, w_in = index[lo].ravel(), index[hi].ravel(), w[inner].ravel()
-        for i_c, i_n in ((i_lo, i_hi), (i_hi, i_lo)):  # every face of every fluid cell is on the diagonal
-            m = i_c >= 0
-            np.add.at(A, (i_c[m], i_c[m]), w_in[m])
         m = (i_lo >= 0) & (i_hi >= 0)
         np.add.at(A, (i_lo[m], i_hi[m]), -w_in[m])
         np.add.at(A, (i_hi[m], i_lo[m]), -w_in[m])
     return A, cells
 
 
-def reference_solution(problem, dim, singular):
+def reference_solution(system, b, dx, dim, singular):
     """Float64 dense solve; for a closed tank the mean-zero solution of the projected system."""
-    types, faces, extra, b, dx = problem
-    A, cells = dense_matrix(types, faces, extra, dx, dim)
-    rhs = b.ravel()[cells]
+    A, cells = dense_matrix(system, dx, dim)
+    rhs = b.astype(np.float32).astype(np.float64).ravel()[cells]
     if singular:
         rhs = rhs - rhs.mean()
-        A = A + np.full(A.shape, A.diagonal().mean() / len(cells))  # A + c 11^T: same solution, mean zero
-    x = np.zeros(types.size)
-    x[cells] = np.linalg.solve(A, rhs)
-    return x.reshape(types.shape), A, cells
+    # for a closed tank, A + c 11^T has the same solution on mean-zero right-hand sides, with mean zero
+    x = np.zeros(b.size)
+    x[cells] = np.linalg.solve(A + (singular * A.diagonal().mean() / len(cells)), rhs)
+    return x.reshape(b.shape)
 
 
-def solve_all(problem, dim, tol=1e-6):
+def solve_all(problem, dim, tol=1e-6, preconditioners=PRECONDITIONERS):
     types, faces, extra, b_np, dx = problem
     system, n_fluid, singular = PressureSystem.from_numpy(types, faces, extra, dx, dim, DEVICE)
     solver = PressureSolver(types.shape, dim, dx, DEVICE)
     out = {}
-    for pc in PRECONDITIONERS:
+    for pc in preconditioners:
         b = wp.array(b_np.astype(np.float32), dtype=float, device=DEVICE)
         x = wp.zeros(types.shape, dtype=float, device=DEVICE)
         info = solver.solve(system, b, x, tol=tol, max_iter=20000, singular=singular, n_fluid=n_fluid,
                             preconditioner=pc)
-        assert info.converged, (pc, info)
+        assert info.converged and info.residual <= tol, (pc, info)
         out[pc] = (x.numpy().astype(np.float64), info)
-    return out, singular
+    return out, system, singular
 
 
-def check_agree(problem, dim, results, singular, tol=1e-6):
+def check_against_reference(problem, dim, tol=1e-6, jump=False, err=5e-4):
+    """Every preconditioner converges to the dense float64 solution of the same system."""
     types, faces, extra, b, dx = problem
-    fluid = types == FLUID
-    if singular:
-        b = np.where(fluid, b - b[fluid].mean(), 0.0)
-    for pc, (x, info) in results.items():
-        # float64 residual of the float32 solution: the solver's own estimate plus round-off
-        res = np.linalg.norm(b - apply_numpy(types, faces, extra, dx, dim, x)) / np.linalg.norm(b)
-        assert res < 20 * tol, (pc, res)
-    ref = results["jacobi"][0]
-    scale = np.abs(ref).max()
+    results, system, singular = solve_all(problem, dim, tol)
+    ref = reference_solution(system, b, dx, dim, singular)
+    A, cells = dense_matrix(system, dx, dim)
+    rhs = b.ravel()[cells] - (b.ravel()[cells].mean() if singular else 0.0)
     for pc, (x, _) in results.items():
-        assert np.abs(x - ref).max() < 1e-3 * scale, pc
+        # measured: at most 7e-5 (the 1000:1 jump cases), 4e-6 otherwise
+        assert np.abs(x - ref).max() < err * np.abs(ref).max(), pc
+        if not jump:  # with the jump, float32 round-off in x alone gives ||b - A x|| ~ 1e-4 ||b||
+            assert np.linalg.norm(rhs - A @ x.ravel()[cells]) < 20 * tol * np.linalg.norm(rhs), pc
+    return results, singular
 
 
 def test_dense_reference_2d():
-    # 10 x 10 cells with a free surface: every preconditioner matches a dense float64 solve.
-    dim = 2
-    problem = make_problem((10, 10), dim, surface=0.7)
-    types, faces, extra, b, dx = problem
-    fluid = np.flatnonzero(types == FLUID)
-    n = fluid.size
-    dense = np.zeros((n, n))
-    for col in range(n):
-        e = np.zeros(types.size)
-        e[fluid[col]] = 1.0
-        dense[:, col] = apply_numpy(types, faces, extra, dx, dim, e.reshape(types.shape)).ravel()[fluid]
-    assert np.allclose(dense, dense.T)
-    exact = np.linalg.solve(dense, b.ravel()[fluid])
-    results, singular = solve_all(problem, dim)
+    # 10 x 10 cells with a free surface (the multigrid has two levels here).
+    _, singular = check_against_reference(make_problem((10, 10), 2, surface=0.7), 2)
     assert not singular
-    for pc, (x, _) in results.items():
-        assert np.abs(x.ravel()[fluid] - exact).max() < 1e-4 * np.abs(exact).max(), pc
 
 
 @pytest.mark.parametrize("dim, interior", [(2, (45, 37)), (3, (17, 13, 11))])
 def test_free_surface_odd_sizes(dim, interior):
-    problem = make_problem(interior, dim, surface=0.6, seed=1)
-    results, singular = solve_all(problem, dim)
+    _, singular = check_against_reference(make_problem(interior, dim, surface=0.6, seed=1), dim)
     assert not singular
-    check_agree(problem, dim, results, singular)
 
 
 @pytest.mark.parametrize("dim, interior", [(2, (30, 21)), (3, (12, 9, 10))])
 def test_closed_tank_is_projected(dim, interior):
     problem = make_problem(interior, dim, seed=2)
-    results, singular = solve_all(problem, dim)
+    results, singular = check_against_reference(problem, dim)
     assert singular
-    check_agree(problem, dim, results, singular)
     fluid = problem[0] == FLUID
     for pc, (x, _) in results.items():
         assert abs(x[fluid].mean()) < 1e-5 * np.abs(x[fluid]).max(), pc  # constant removed
@@ -175,19 +155,26 @@ def test_closed_tank_is_projected(dim, interior):
 def test_density_jump_with_gas(dim, interior):
     problem = make_problem(interior, dim, surface=0.8, bubble=((0.45, 0.4, 0.5), 0.22), seed=3)
     assert (problem[2] > 0).sum() > 20  # a real bubble
-    results, singular = solve_all(problem, dim)
+    _, singular = check_against_reference(problem, dim, jump=True)
     assert not singular
-    check_agree(problem, dim, results, singular)
+
+
+@pytest.mark.parametrize("dim, interior", [(2, (40, 33)), (3, (14, 13, 12))])
+def test_closed_tank_with_gas_is_nearly_singular(dim, interior):
+    # Only the gas's tiny kappa/dt^2 pins the constant (eigenvalue below 1e-6 of the largest), so the
+    # solution's constant part is loose at a given residual: measured error up to 8e-4 (multigrid).
+    problem = make_problem(interior, dim, bubble=((0.45, 0.4, 0.5), 0.22), seed=3)
+    _, singular = check_against_reference(problem, dim, jump=True, err=3e-3)
+    assert not singular
 
 
 def test_multigrid_needs_far_fewer_iterations():
-    # 1000:1 bubble in a 2D tank of 127 x 120 cells. Measured: jacobi 732, multigrid 24 iterations (30x).
-    # Asserted with margin: at least 10x fewer.
-    dim = 2
-    problem = make_problem((127, 120), dim, surface=0.8, bubble=((0.4, 0.4, 0.5), 0.2), seed=4)
-    results, _ = solve_all(problem, dim, tol=1e-5)
+    # 1000:1 bubble in a 2D tank of 127 x 120 cells, random right-hand side. Measured: jacobi 525,
+    # multigrid 9 iterations (58x). Asserted with a wide margin (round-off, future smoother changes): 20x.
+    problem = make_problem((127, 120), 2, surface=0.8, bubble=((0.4, 0.4, 0.5), 0.2), seed=4)
+    results, _, _ = solve_all(problem, 2, tol=1e-5, preconditioners=("jacobi", "multigrid"))
     it = {pc: info.iterations for pc, (_, info) in results.items()}
-    assert it["multigrid"] * 10 <= it["jacobi"], it
+    assert it["multigrid"] * 20 <= it["jacobi"], it
 
 
 @pytest.mark.parametrize("dim, interior, surface", [(2, (37, 29), 0.7), (3, (13, 11, 9), None)])

@@ -170,6 +170,8 @@ class PressureSystem:
     diag = extra_diag + sum(inv_rho_f) / dx^2 on fluid cells (1 elsewhere, unused).
     extra_diag is kappa/dt^2 of compressible gas cells, 0 for liquid. The system is singular
     (constants in its null space) iff no fluid cell touches an empty cell and extra_diag == 0.
+    Faces on the arrays' outer boundary have inv_rho = 0 (the ghost layer keeps fluid off them);
+    the multigrid preconditioner relies on it. b must be 0 on cells that are not FLUID.
     """
 
     types: wp.array3d  # int32 cell types (grid.py)
@@ -179,7 +181,8 @@ class PressureSystem:
 
     @classmethod
     def from_numpy(cls, types, inv_rho, extra_diag, dx: float, dim: int, device):
-        """Build the system from numpy cell types, face weights and extra_diag (tests, benchmarks).
+        """Build the system from numpy cell types, face weights and extra_diag (tests, benchmarks);
+        diag is computed here, in float64, then stored as float32 like every other array.
 
         Returns (system, n_fluid, singular), as the simulation's grid stage counts them.
         """
@@ -188,13 +191,10 @@ class PressureSystem:
         total = sum(np.take(w, range(0, w.shape[a] - 1), axis=a) + np.take(w, range(1, w.shape[a]), axis=a)
                     for a, w in enumerate(faces[:dim]))
         diag = np.where(fluid, extra_diag + total / dx**2, 1.0).astype(np.float32)
-        pinned = np.any(extra_diag[fluid] > 0)
+        pinned = bool(np.any(extra_diag[fluid] > 0))
         for a in range(dim):  # a fluid cell beside an empty one pins the constant
-            lo = [slice(None)] * 3
-            hi = [slice(None)] * 3
-            lo[a], hi[a] = slice(0, -1), slice(1, None)
-            lo, hi = tuple(lo), tuple(hi)
-            pinned = pinned or np.any(fluid[lo] & (types[hi] == EMPTY)) or np.any(fluid[hi] & (types[lo] == EMPTY))
+            f, e = np.moveaxis(fluid, a, 0), np.moveaxis(types == EMPTY, a, 0)
+            pinned |= bool(np.any(f[:-1] & e[1:]) or np.any(f[1:] & e[:-1]))
         arr = lambda a, dtype=float: wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)  # noqa: E731
         system = cls(arr(types.astype(np.int32), wp.int32), tuple(arr(w) for w in faces), arr(diag),
                      arr(np.where(fluid, extra_diag, 0.0).astype(np.float32)))

@@ -52,6 +52,10 @@ class SolverStats:
         self.cg_unconverged += 0 if info.converged else 1
 
 
+class SimulationError(RuntimeError):
+    """The simulation cannot go on; the message names the step, the stage and the likely cause."""
+
+
 class Simulation:
     """Runs a validated :class:`~warp_mpm_bubbles.scene.Scene` on a Warp device ("cpu", "cuda:0")."""
 
@@ -112,6 +116,7 @@ class Simulation:
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed = wp.zeros(1, dtype=float, device=dev)
+        self.nonfinite = wp.zeros(1, dtype=wp.int32, device=dev)  # particles p2g refused this step
         self.solver = PressureSolver(g.cells, g.dim, g.dx, dev)
         walls = self.scene.domain.wall_types
         self._wall_lo = wp.vec3i(walls[0], walls[2], walls[4])
@@ -128,13 +133,14 @@ class Simulation:
     # ------------------------------------------------------------------------------ the step
     def _particles_to_grid(self):
         g = self.grid
-        for arr in (*self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count):
+        for arr in (*self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count, self.nonfinite):
             arr.zero_()
         self._launch(
             p2g,
             self.num_particles,
             [self.x, self.v, self.C, self.mass, self.vol0, self.phase, self.active, self._origin, g.dx, g.dim,
-             *self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count],
+             self._domain_hi, *self.mom, *self.face_mass, self.liq_mass, self.liq_volume, self.cell_count,
+             self.nonfinite],
         )
         if self.has_gas:
             for arr in (self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv, self.gas_count):
@@ -143,7 +149,7 @@ class Simulation:
                 p2g_gas,
                 self.num_particles,
                 [self.x, self.mass, self.vol0, self.J, self.phase, self.active, self.gas_law, self.gas_gamma,
-                 self.scene.domain.ambient_pressure, self._origin, g.dx, g.dim,
+                 self.scene.domain.ambient_pressure, self._origin, g.dx, g.dim, self._domain_hi,
                  self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv, self.gas_count],
             )
 
@@ -177,6 +183,13 @@ class Simulation:
                           self.diag, self.extra_diag, self.rhs, self.counters])
         with self.timer("pressure"):
             n_fluid, n_pinned = (int(c) for c in self.counters.numpy())
+            bad = int(self.nonfinite.numpy()[0])
+            if bad:
+                raise SimulationError(
+                    f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {bad} particles entered p2g with a "
+                    f"non-finite position or velocity. Likely cause: the previous step diverged (a time "
+                    f"step too large for the scene: lower [solver].cfl or set [solver].max_dt) or NaN/Inf "
+                    f"in the initial state.")
             info = self.solver.solve(
                 PressureSystem(self.types, tuple(self.inv_rho), self.diag, self.extra_diag), self.rhs, self.pressure,
                 tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,

@@ -58,6 +58,17 @@ def make_stencil(X: wp.vec3, dim: int):
 
 
 @wp.func
+def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
+    """x moved into [eps, size - eps] on the simulated axes, so every stencil lies inside the arrays
+    (a particle exactly on the far wall would otherwise reach one node past the ghost layer)."""
+    eps = 1.0e-4 * dx
+    y = x
+    for a in range(dim):
+        y[a] = wp.clamp(x[a], eps, domain_hi[a] - eps)
+    return y
+
+
+@wp.func
 def grid_coord(x: wp.vec3, origin: wp.vec3, inv_dx: float, offset: wp.vec3):
     return (x - origin) * inv_dx - offset
 
@@ -115,6 +126,7 @@ def p2g(
     origin: wp.vec3,
     dx: float,
     dim: int,
+    domain_hi: wp.vec3,
     mom_u: wp.array3d(dtype=float),
     mom_v: wp.array3d(dtype=float),
     mom_w: wp.array3d(dtype=float),
@@ -124,16 +136,24 @@ def p2g(
     cell_mass: wp.array3d(dtype=float),
     cell_volume: wp.array3d(dtype=float),
     cell_count: wp.array3d(dtype=wp.int32),
+    nonfinite: wp.array(dtype=wp.int32),
 ):
-    """Momentum of every active particle; cell mass and rest volume of the liquid; particle counts."""
+    """Momentum of every active particle; cell mass and rest volume of the liquid; particle counts.
+
+    A particle with a non-finite position or velocity is skipped and counted in nonfinite[0]: the
+    step then stops with a message instead of writing outside the grid.
+    """
     p = wp.tid()
     if active[p] == 0:
         return
-    xp = x[p]
+    vp = v[p]
+    if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
+        wp.atomic_add(nonfinite, 0, 1)
+        return
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
     m = pmass[p]
     Cp = C[p]
-    vp = v[p]
     splat_component(mom_u, mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx, m, vp[0], Cp[0])
     splat_component(mom_v, mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx, m, vp[1], Cp[1])
     if dim == 3:
@@ -179,6 +199,7 @@ def p2g_gas(
     origin: wp.vec3,
     dx: float,
     dim: int,
+    domain_hi: wp.vec3,
     gas_mass: wp.array3d(dtype=float),
     gas_volume: wp.array3d(dtype=float),
     gas_pv: wp.array3d(dtype=float),
@@ -187,9 +208,9 @@ def p2g_gas(
 ):
     """Gas cell state, volume-weighted: mass, current volume V0 J, p V and kappa V (runs only with gas)."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS:
+    if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
-    xp = x[p]
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
     vol = pvol0[p] * J[p]
     pg = gas_pressure(law[p], J[p], gamma[p], p_atm)
@@ -246,7 +267,7 @@ def g2p_advect(
     p = wp.tid()
     if active[p] == 0:
         return
-    xp = x[p]
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
     gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
     gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
@@ -260,16 +281,12 @@ def g2p_advect(
     J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
 
     # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
-    xn = xp + dt * vp
-    eps = 1.0e-4 * dx
+    moved = xp + dt * vp
+    xn = clamp_to_domain(moved, domain_hi, dx, dim)
     for a in range(dim):
-        lo = eps
-        hi = domain_hi[a] - eps
-        if xn[a] < lo:
-            xn[a] = lo
+        if moved[a] < xn[a]:
             vp[a] = wp.max(vp[a], 0.0)
-        if xn[a] > hi:
-            xn[a] = hi
+        if moved[a] > xn[a]:
             vp[a] = wp.min(vp[a], 0.0)
     x[p] = xn
     v[p] = vp

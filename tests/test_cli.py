@@ -121,3 +121,10 @@ def test_rising_bubble_example_writes_water_and_air(tmp_path):
     assert stage.GetPrimAtPath("/World/ParticlePoints").IsValid()  # format = "both"
     frame = read_frames(out)["frames"][1]
     assert set(np.unique(frame["proto_indices"])) == {0, 1}
+
+
+def test_gas_scene_summary_reports_the_gas_budget(tmp_path, capsys):
+    out = tmp_path / "bubble.usdc"
+    assert main(["run", str(ROOT / "examples" / "rising_bubble.toml"), "--num-frames", "1", "--stage-path", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "gas: 0.0% of its mass vented" in err and "vent" in err.splitlines()[-1]

@@ -24,10 +24,10 @@ class RunResult:
 class ProgressBar:
     """One line redrawn in place on a terminal; on a log (CI, a file) a line every 10% of the run."""
 
-    def __init__(self, total: int, stream=sys.stderr, width: int = 28):
-        self.total, self.stream, self.width = total, stream, width
+    def __init__(self, total: int, stream=None, width: int = 28):
+        self.total, self.stream, self.width = total, stream or sys.stderr, width
         self.start = time.perf_counter()
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
         self._last_decile = -1
 
     def update(self, done: int, sim_time: float, steps: int):
@@ -49,8 +49,12 @@ def _clock(seconds: float) -> str:
     return f"{m}m{s:02d}s" if m else f"{s}s"
 
 
-def run_scene(scene, *, device=None, progress: bool = True, log=sys.stderr) -> RunResult:
-    """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path."""
+def run_scene(scene, *, device=None, progress: bool = True, log=None) -> RunResult:
+    """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path.
+
+    Progress and the closing summary go to `log` (default: the sys.stderr of the moment).
+    """
+    log = log or sys.stderr
     start = time.perf_counter()
     sim = Simulation(scene, device=device)
     out = scene.output
@@ -95,5 +99,9 @@ def summary(result: RunResult) -> str:
     lines.append(f"  pressure CG: {st.cg_iterations:,} iterations over {st.cg_solves} solves "
                  f"(mean {mean:.1f}, max {st.cg_max_iterations}), worst residual {st.cg_worst_residual:.1e}"
                  + (f", {st.cg_unconverged} solves hit the iteration cap" if st.cg_unconverged else ""))
+    if sim.has_gas:
+        b = sim.gas_budget()
+        lines.append(f"  gas: {100 * b['vented'] / b['total']:.1f}% of its mass vented to the atmosphere, "
+                     f"{b['volume'] * 1e6:.3g} cm^3 left in the liquid")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

@@ -35,6 +35,7 @@ import numpy as np
 import warp as wp
 
 from warp_mpm_bubbles.grid import EMPTY, FLUID, SOLID_FREE_SLIP
+from warp_mpm_bubbles.timing import describe_device
 from warp_mpm_bubbles.pressure import PRECONDITIONERS, PressureSolver, PressureSystem
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -165,18 +166,6 @@ def run(n, dim, bubbles, dev, repeat):
     return out
 
 
-def device_description(dev) -> str:
-    if dev.is_cuda:
-        return f"{dev.alias} ({dev.name})"
-    model = platform.processor() or "unknown CPU"
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{dev.alias} ({model}, {os.cpu_count()} cores)"
-
-
 def markdown(meta, rows) -> str:
     out = [f"# Pressure solver: PCG iterations and solve time on {meta['device']}", "",
            f"- date: {meta['date']}", f"- warp {meta['warp_version']}, python {meta['python']}",
@@ -212,7 +201,7 @@ def main(argv=None) -> int:
     meta = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "warp_version": wp.config.version, "python": platform.python_version(),
-        "device": device_description(dev), "device_alias": dev.alias, "cpu_cores": os.cpu_count(),
+        "device": describe_device(dev), "device_alias": dev.alias, "cpu_cores": os.cpu_count(),
         "command": shlex.join([sys.executable, *sys.argv] if argv is None else [__file__, *argv]),
         "problems": "tank: water to y = 0.6 m with a free surface; bubbles: the same with 5 gas bubbles at "
                     "rho 1000:1.2 and extra_diag = kappa/dt^2 (see the script's docstring)",

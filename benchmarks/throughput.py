@@ -30,6 +30,7 @@ from pathlib import Path
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Scene, SolverSettings
+from warp_mpm_bubbles.timing import describe_device
 from warp_mpm_bubbles.simulation import Simulation, SolverStats
 from warp_mpm_bubbles.timing import StageTimer
 
@@ -45,18 +46,6 @@ def dam_break(n: int, ppc: int) -> Scene:
         shapes=[Box(material="water", min=(0.0, 0.0, 0.0), max=WATER_MAX)],
         solver=SolverSettings(particles_per_cell=ppc),
     )
-
-
-def device_description(dev) -> str:
-    if dev.is_cuda:
-        return f"{dev.alias} ({dev.name})"
-    model = platform.processor() or "unknown CPU"
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{dev.alias} ({model}, {os.cpu_count()} cores)"
 
 
 def run_size(n: int, args, dev) -> dict:
@@ -153,7 +142,7 @@ def main(argv=None) -> int:
     meta = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "warp_version": wp.config.version, "python": platform.python_version(),
-        "device": device_description(dev), "device_alias": dev.alias, "device_name": dev.name,
+        "device": describe_device(dev), "device_alias": dev.alias, "device_name": dev.name,
         "cpu_cores": os.cpu_count(),
         "kernel_cache": ("cold: compiled into " if args.cold_cache else "as found: ") + wp.config.kernel_cache_dir,
         "command": shlex.join([sys.executable, *sys.argv] if argv is None else [__file__, *argv]),

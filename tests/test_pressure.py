@@ -200,18 +200,3 @@ def test_multigrid_is_symmetric_positive_definite(dim, interior, surface):
         assert abs((x * my).sum() - (y * mx).sum()) < 1e-5 * np.linalg.norm(x) * np.linalg.norm(my)
         assert (x * mx).sum() > 0.0
         assert np.all(mx[~fluid] == 0.0)
-
-
-def test_legacy_jacobi_flag():
-    dim = 2
-    types, faces, extra, b_np, dx = make_problem((20, 20), dim, surface=0.5)
-    system, n_fluid, singular = PressureSystem.from_numpy(types, faces, extra, dx, dim, DEVICE)
-    solver = PressureSolver(types.shape, dim, dx, DEVICE)
-    iters = []
-    for kwargs in ({"jacobi": True}, {"preconditioner": "jacobi"}, {"jacobi": False}, {"preconditioner": "none"},
-                   {"jacobi": True, "preconditioner": "none"}):
-        b = wp.array(b_np.astype(np.float32), dtype=float, device=DEVICE)
-        x = wp.zeros(types.shape, dtype=float, device=DEVICE)
-        iters.append(solver.solve(system, b, x, tol=1e-6, max_iter=1000, singular=singular, n_fluid=n_fluid,
-                                  **kwargs).iterations)
-    assert iters[0] == iters[1] and iters[2] == iters[3] == iters[4] and iters[0] != iters[2]

@@ -376,7 +376,8 @@ class MultigridPreconditioner:
             for _ in range(self.sweeps):
                 for color in (0, 1):
                     self._smooth(lvl, b[lvl], x[lvl], color)
-            self._launch(restrict_residual, self.shapes[lvl + 1], [self.levels[lvl], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
+            self._launch(restrict_residual, self.shapes[lvl + 1],
+                         [self.levels[lvl], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
         self._launch(solve_coarsest, 1, [self.levels[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])
         for lvl in range(last - 1, -1, -1):
             self._launch(prolongate, self.shapes[lvl], [self.levels[lvl].types, x[lvl + 1], x[lvl]])

@@ -253,14 +253,10 @@ class PressureSolver:
             self._launch(shift_fluid, [types, z, float(-z_sum / n_project)])
         return rz
 
-    def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, jacobi: bool = True,
-              singular: bool, n_fluid: int, preconditioner: str | None = None):
-        """Solve A x = b in place; x holds the warm start.
-
-        preconditioner: "none" | "jacobi" | "multigrid"; when None, the older flag `jacobi` picks
-        between "jacobi" and "none".
-        """
-        mode = PRECONDITIONERS.index(preconditioner) if preconditioner is not None else int(bool(jacobi))
+    def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, singular: bool, n_fluid: int,
+              preconditioner: str = "multigrid"):
+        """Solve A x = b in place; x holds the warm start. preconditioner: "none" | "jacobi" | "multigrid"."""
+        mode = PRECONDITIONERS.index(preconditioner)
         types, diag, inv_rho = system.types, system.diag, system.inv_rho
         apply = lambda p, out: self._dots(  # noqa: E731
             apply_operator, [types, diag, *inv_rho, self.inv_dx2, self.dim, p, out])[0]

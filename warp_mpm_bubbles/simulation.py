@@ -193,7 +193,7 @@ class Simulation:
             info = self.solver.solve(
                 PressureSystem(self.types, tuple(self.inv_rho), self.diag, self.extra_diag), self.rhs, self.pressure,
                 tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
-                jacobi=settings.preconditioner == "jacobi", singular=n_pinned == 0, n_fluid=n_fluid,
+                preconditioner=settings.preconditioner, singular=n_pinned == 0, n_fluid=n_fluid,
             )
             self.stats.record(info)
             for a in g.axes:

@@ -6,6 +6,8 @@ on the CPU, launches are synchronous and the synchronization is skipped.
 
 from __future__ import annotations
 
+import os
+import platform
 import time
 from contextlib import contextmanager
 
@@ -36,3 +38,16 @@ class StageTimer:
     @property
     def total(self) -> float:
         return sum(self.seconds.values())
+
+
+def describe_device(dev) -> str:
+    """A Warp device as benchmark notes name it: the GPU's name, or the CPU model and core count."""
+    if dev.is_cuda:
+        return f"{dev.alias} ({dev.name})"
+    model = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{dev.alias} ({model}, {os.cpu_count()} cores)"

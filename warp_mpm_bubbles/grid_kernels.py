@@ -436,20 +436,60 @@ def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(
         vel[i, j, k] = 0.0
 
 
+@wp.func
+def height_along(c: wp.vec3i, up_axis: int, up_sign: int, n_up: int):
+    """Cell index counted upwards (against gravity)."""
+    if up_sign > 0:
+        return c[up_axis]
+    return n_up - 1 - c[up_axis]
+
+
+@wp.func
+def column_of(c: wp.vec3i, up_axis: int):
+    col = c
+    col[up_axis] = 0
+    return col
+
+
+@wp.kernel
+def liquid_ceiling(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    up_axis: int,
+    up_sign: int,
+    ceiling: wp.array3d(dtype=wp.int32),
+):
+    """Per column along gravity, the height of the highest liquid cell (-1: none)."""
+    i, j, k = wp.tid()
+    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
+        return
+    c = wp.vec3i(i, j, k)
+    col = column_of(c, up_axis)
+    wp.atomic_max(ceiling, col[0], col[1], col[2], height_along(c, up_axis, up_sign, types.shape[up_axis]))
+
+
 @wp.kernel
 def vent_exposed_gas(
     x: wp.array(dtype=wp.vec3),
     phase: wp.array(dtype=wp.int32),
     pmass: wp.array(dtype=float),
     types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    up_axis: int,
+    up_sign: int,
     origin: wp.vec3,
     dx: float,
     dim: int,
     active: wp.array(dtype=wp.int32),
     vented_mass: wp.array(dtype=wp.float64),
 ):
-    """Gas that reaches the atmosphere (an empty cell or a cell beside one) joins it: the particle
-    is retired and its mass booked as vented, so gas mass stays exactly accounted for."""
+    """Gas that reaches the open air joins it: the particle is retired and its mass booked as
+    vented, so gas mass stays exactly accounted for.
+
+    Open air: an empty cell beside the particle's cell, with no liquid above it in its column.
+    Without the second condition a particle-free hole that stretching opens inside the water
+    would swallow the gas next to it. With no gravity there is no "above": any empty neighbour.
+    """
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
@@ -460,6 +500,9 @@ def vent_exposed_gas(
         for s in range(2):
             if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
                 exposed = True
+    if exposed and up_axis >= 0:
+        col = column_of(c, up_axis)
+        exposed = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
     if exposed:
         active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))

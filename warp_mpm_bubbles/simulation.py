@@ -126,6 +126,14 @@ class Simulation:
         gravity = tuple(self.scene.domain.gravity) + (0.0,) * (3 - g.dim)
         self._gravity = tuple(float(a) for a in gravity)
         self._interface = INTERFACES.index(self.scene.solver.interface)
+        # "Up" for venting: against the strongest gravity component (axis -1: no gravity, no up).
+        g_abs = [abs(a) for a in self._gravity[: g.dim]]
+        up_axis = int(np.argmax(g_abs)) if max(g_abs) > 0.0 else -1
+        self._up = (up_axis, 1 if up_axis < 0 or self._gravity[up_axis] < 0.0 else -1)
+        column = list(g.cells)
+        if up_axis >= 0:
+            column[up_axis] = 1
+        self.ceiling = wp.zeros(tuple(column) if self.has_gas else (1, 1, 1), dtype=wp.int32, device=dev)
 
     def _launch(self, kernel, dim, inputs):
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
@@ -215,9 +223,14 @@ class Simulation:
             self._max_speed = float(self.max_speed.numpy()[0])
         if self.has_gas:
             with self.timer("vent"):
+                up_axis, up_sign = self._up
+                if up_axis >= 0:
+                    self.ceiling.fill_(-1)
+                    self._launch(gk.liquid_ceiling, g.cells, [self.types, self.phase_cells, up_axis, up_sign,
+                                                              self.ceiling])
                 self._launch(gk.vent_exposed_gas, self.num_particles,
-                             [self.x, self.phase, self.mass, self.types, self._origin, g.dx, g.dim,
-                              self.active, self.vented_mass])
+                             [self.x, self.phase, self.mass, self.types, self.ceiling, up_axis, up_sign,
+                              self._origin, g.dx, g.dim, self.active, self.vented_mass])
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 

@@ -275,6 +275,10 @@ BAD = [
      ["[materials.oil].gamma", "1.0", "> 1"]),
     ("zero ambient pressure", setk("domain", "ambient_pressure", value=0.0), ["[domain].ambient_pressure", "0.0"]),
     ("bad interface", setk("solver", "interface", value="level_set"), ["[solver].interface", "'level_set'", "'sharp'"]),
+    ("negative surface tension", setk("materials", "water", "surface_tension", value=-0.07),
+     ["[materials.water].surface_tension", "-0.07", ">= 0"]),
+    ("surface tension on a gas", setk("materials", "oil", value={"kind": "gas", "surface_tension": 0.07}),
+     ["[materials.oil].surface_tension", "belongs to the liquid"]),
 ]
 
 
@@ -296,7 +300,7 @@ def test_unknown_key_message_from_file(tmp_path):
     with pytest.raises(SceneError) as err:
         load_scene(path)
     assert str(err.value) == (f"{path}: unknown key [materials.water].densty = 1000.0; "
-                              "allowed keys: kind, density, color, eos, gamma (did you mean 'density'?)")
+                              "allowed keys: kind, density, color, eos, gamma, surface_tension (did you mean 'density'?)")
     assert err.value.key == "[materials.water].densty" and err.value.value == 1000.0
 
 

@@ -204,6 +204,7 @@ class Material:
     color: tuple[float, float, float] | None = None
     eos: str | None = None  # gas only: isothermal (default) | adiabatic | incompressible
     gamma: float = 1.4  # adiabatic index, used by eos = "adiabatic"
+    surface_tension: float = 0.0  # liquid only, N/m (water-air 0.072); 0 = the stage does not run
 
     @property
     def is_gas(self) -> bool:
@@ -224,6 +225,11 @@ class Material:
         elif self.eos is not None:
             c.fail(f"{t}.eos", self.eos, f"only gas materials have an equation of state; remove it or set "
                                          f"{t}.kind = \"gas\"")
+        self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, ge=0)
+        if self.kind == "gas" and self.surface_tension > 0:
+            c.fail(f"{t}.surface_tension", self.surface_tension,
+                   "surface tension belongs to the liquid (it acts on its surface with gas and air); "
+                   "set it on the liquid material")
 
 
 class _Shape:

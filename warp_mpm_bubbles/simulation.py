@@ -31,6 +31,7 @@ from .timing import StageTimer
 from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2g_gas
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
+LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tension.py measures it)
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
 
 
@@ -114,6 +115,10 @@ class Simulation:
         self.gas_count = gas_cells(wp.int32)
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
+        liquids = [m for m in self.scene.materials.values() if not m.is_gas]
+        self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # the stage runs only if > 0
+        if self.sigma > 0.0:
+            self.curvature, self.level, self.level_tmp = cells(), cells(), cells()
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed = wp.zeros(1, dtype=float, device=dev)
         self.nonfinite = wp.zeros(1, dtype=wp.int32, device=dev)  # particles p2g refused this step
@@ -183,6 +188,19 @@ class Simulation:
                 self._launch(gk.face_inverse_density, g.face_shape(a),
                              [self.types, self.phase_cells, self.liq_mass, self.liq_volume, self.gas_mass,
                               self.gas_volume, two_phase, self._interface, a, 1.0 / g.dx**3, self.inv_rho[a]])
+        if self.sigma > 0.0:
+            with self.timer("tension"):
+                level, smoothed = self.level, self.level_tmp
+                self._launch(gk.liquid_level_set, g.cells, [self.liq_volume, 1.0 / g.dx**3, level])
+                for _ in range(LEVEL_SET_SMOOTHING):
+                    self._launch(gk.smooth_level_set, g.cells, [self.types, level, g.dim, smoothed])
+                    level, smoothed = smoothed, level
+                self._launch(gk.surface_curvature, g.cells, [self.types, level, g.dx, g.dim, self.curvature])
+                for a in g.axes:
+                    self._launch(gk.apply_surface_tension, g.face_shape(a),
+                                 [self.types, self.phase_cells, level, self.curvature, self.inv_rho[a],
+                                  self.sigma, a, g.dx, dt, self.vel[a]])
+        with self.timer("grid"):
             self.counters.zero_()
             self._launch(gk.pressure_diagonal_and_rhs, g.cells,
                          [self.types, self.phase_cells, *self.inv_rho, *self.vel, self.liq_volume, self.gas_volume,
@@ -236,11 +254,16 @@ class Simulation:
 
     # ---------------------------------------------------------------------------- time steps
     def stable_dt(self) -> float:
-        """CFL limit, with sqrt(|g| dx) added to the speed so a fluid at rest still takes safe steps."""
+        """CFL limit, with sqrt(|g| dx) added to the speed so a fluid at rest still takes safe steps;
+        the capillary limit when surface tension is on; max_dt."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self._gravity))
         speed = self._max_speed + math.sqrt(g_mag * self.grid.dx)
         dt = s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf
+        if self.sigma > 0.0:
+            # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
+            rho = sum(sorted((m.density for m in self.scene.materials.values()), reverse=True)[:2])
+            dt = min(dt, math.sqrt(rho * self.grid.dx**3 / (4.0 * math.pi * self.sigma)))
         if s.max_dt is not None:
             dt = min(dt, s.max_dt)
         return dt

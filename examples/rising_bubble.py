@@ -4,8 +4,8 @@ water and air prototypes.
     python examples/rising_bubble.py --device cpu --num-frames 12 --stage-path rising_bubble.usdc
     warp-mpm-bubbles preview rising_bubble.usdc --frames 0,4,8,12
 
-Known limitation (issue #3): after about one diameter of rise the water under the bubble breaks
-through it and some gas is lost; see the README's status.
+Known limitation (issue #3): the bubble's skirt sheds small gas pockets into the water (about 4%
+of the gas in 0.5 s); see the README's Bubbles section.
 """
 
 import pathlib

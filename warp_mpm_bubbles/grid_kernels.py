@@ -314,18 +314,21 @@ def pressure_diagonal_and_rhs(
     inv_dx2 = 1.0 / (dx * dx)
     d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
     div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
-    pinned = int(0)
-    for s in range(2):
-        if cell_type_at(types, wp.vec3i(i - 1 + 2 * s, j, k)) == EMPTY:
-            pinned = 1
-        if cell_type_at(types, wp.vec3i(i, j - 1 + 2 * s, k)) == EMPTY:
-            pinned = 1
+    pinned = int(0)  # an empty neighbour: Dirichlet
+    enclosed = int(1)  # liquid on every side: no surface, wall or gas nearby to lower phi legitimately
+    for a in range(dim):
+        for s in range(2):
+            n = wp.vec3i(i, j, k) + (2 * s - 1) * unit(a)
+            t = cell_type_at(types, n)
+            if t == EMPTY:
+                pinned = 1
+            if t != FLUID:
+                enclosed = 0
+            elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
+                enclosed = 0
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
-        for s in range(2):
-            if cell_type_at(types, wp.vec3i(i, j, k - 1 + 2 * s)) == EMPTY:
-                pinned = 1
     b = -div / (dx * dt)
     extra = float(0.0)
     vg = float(0.0)
@@ -344,7 +347,14 @@ def pressure_diagonal_and_rhs(
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID:
         phi = liq_volume[i, j, k] * inv_dx2 / dx
-        b += volume_correction * wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0) / (dt * dt)
+        excess = wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0)
+        if enclosed == 1:
+            # Two-sided inside the liquid: an under-filled cell was stretched and is asked to
+            # contract (near a surface, wall or gas, phi < 1 is legitimate and left alone).
+            if two_phase != 0:
+                phi += gas_volume[i, j, k] * inv_dx2 / dx
+            excess = wp.min(phi - 1.0 + VOLUME_NOISE_BAND, 0.0) + excess
+        b += volume_correction * excess / (dt * dt)
     diag[i, j, k] = d * inv_dx2 + extra
     extra_diag[i, j, k] = extra
     rhs[i, j, k] = b

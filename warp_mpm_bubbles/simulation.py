@@ -23,6 +23,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from . import tension_kernels as tk
 from .grid import PHASE_GAS, PHASE_LIQUID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .scene import INTERFACES
@@ -191,13 +192,13 @@ class Simulation:
         if self.sigma > 0.0:
             with self.timer("tension"):
                 level, smoothed = self.level, self.level_tmp
-                self._launch(gk.liquid_level_set, g.cells, [self.liq_volume, 1.0 / g.dx**3, level])
+                self._launch(tk.liquid_level_set, g.cells, [self.liq_volume, 1.0 / g.dx**3, level])
                 for _ in range(LEVEL_SET_SMOOTHING):
-                    self._launch(gk.smooth_level_set, g.cells, [self.types, level, g.dim, smoothed])
+                    self._launch(tk.smooth_level_set, g.cells, [self.types, level, g.dim, smoothed])
                     level, smoothed = smoothed, level
-                self._launch(gk.surface_curvature, g.cells, [self.types, level, g.dx, g.dim, self.curvature])
+                self._launch(tk.surface_curvature, g.cells, [self.types, level, g.dx, g.dim, self.curvature])
                 for a in g.axes:
-                    self._launch(gk.apply_surface_tension, g.face_shape(a),
+                    self._launch(tk.apply_surface_tension, g.face_shape(a),
                                  [self.types, self.phase_cells, level, self.curvature, self.inv_rho[a],
                                   self.sigma, a, g.dx, dt, self.vel[a]])
         with self.timer("grid"):

@@ -1,0 +1,152 @@
+"""Surface tension (runs only when a liquid has surface_tension > 0): the liquid's level set,
+its smoothing and curvature, and the Laplace pressure jump on the faces of the liquid's surface.
+"""
+
+import warp as wp
+
+from .grid import FLUID, PHASE_LIQUID
+from .grid_kernels import cell_type_at, is_solid, unit
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float)):
+    """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface."""
+    i, j, k = wp.tid()
+    level[i, j, k] = wp.clamp(2.0 * liq_volume[i, j, k] * inv_cell_vol - 1.0, -1.0, 1.0)
+
+
+@wp.func
+def level_at(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, fallback: wp.vec3i):
+    """The level set at c; solid cells (and the array's edge) mirror `fallback`: a 90 degree contact."""
+    d = c
+    if is_solid(cell_type_at(types, c)):
+        d = fallback
+    return level[d[0], d[1], d[2]]
+
+
+@wp.kernel
+def smooth_level_set(
+    types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int, out: wp.array3d(dtype=float)
+):
+    """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
+    scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
+    capillary currents."""
+    i, j, k = wp.tid()
+    c = wp.vec3i(i, j, k)
+    value = level[i, j, k]
+    if is_solid(types[i, j, k]):
+        out[i, j, k] = value
+        return
+    total = float(0.0)
+    weight = float(0.0)
+    nk = 1
+    if dim == 3:
+        nk = 3
+    for a in range(3):
+        for b in range(3):
+            for e in range(nk):
+                w = float((2 - wp.abs(a - 1)) * (2 - wp.abs(b - 1)))
+                o = wp.vec3i(a - 1, b - 1, 0)
+                if dim == 3:
+                    w = w * float(2 - wp.abs(e - 1))
+                    o = wp.vec3i(a - 1, b - 1, e - 1)
+                total += w * level_at(level, types, c + o, c)
+                weight += w
+    out[i, j, k] = total / weight
+
+
+@wp.kernel
+def surface_curvature(
+    types: wp.array3d(dtype=wp.int32),
+    level: wp.array3d(dtype=float),
+    dx: float,
+    dim: int,
+    curvature: wp.array3d(dtype=float),
+):
+    """kappa = div(grad psi / |grad psi|), central differences, near the liquid's surface only.
+
+    The normal points into the liquid, so kappa = +(d-1)/R for a bubble of radius R and -(d-1)/R
+    for a drop: the pressure jump (non-liquid minus liquid) is sigma kappa in both cases. Clamped
+    to 1/dx, the largest curvature the grid can carry.
+    """
+    i, j, k = wp.tid()
+    c = wp.vec3i(i, j, k)
+    curvature[i, j, k] = 0.0
+    if is_solid(types[i, j, k]):
+        return
+    if i == 0 or j == 0 or i == types.shape[0] - 1 or j == types.shape[1] - 1:
+        return
+    if dim == 3 and (k == 0 or k == types.shape[2] - 1):
+        return
+    p0 = level_at(level, types, c, c)
+    if wp.abs(p0) >= 0.99:
+        return
+    grad = wp.vec3(0.0)
+    hess = wp.mat33(0.0)
+    for a in range(dim):
+        ea = unit(a)
+        pp = level_at(level, types, c + ea, c)
+        pm = level_at(level, types, c - ea, c)
+        grad[a] = (pp - pm) / (2.0 * dx)
+        hess[a, a] = (pp - 2.0 * p0 + pm) / (dx * dx)
+        for b in range(a + 1, dim):
+            eb = unit(b)
+            cross = (level_at(level, types, c + ea + eb, c)
+                     - level_at(level, types, c + ea - eb, c)
+                     - level_at(level, types, c - ea + eb, c)
+                     + level_at(level, types, c - ea - eb, c)) / (4.0 * dx * dx)
+            hess[a, b] = cross
+            hess[b, a] = cross
+    g2 = wp.dot(grad, grad)
+    if g2 < 1.0e-12 / (dx * dx):
+        return
+    # div(n) = (|g|^2 tr(H) - g^T H g) / |g|^3
+    kappa = (g2 * wp.trace(hess) - wp.dot(grad, hess * grad)) / (g2 * wp.sqrt(g2))
+    curvature[i, j, k] = wp.clamp(kappa, -1.0 / dx, 1.0 / dx)
+
+
+@wp.kernel
+def apply_surface_tension(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    level: wp.array3d(dtype=float),
+    curvature: wp.array3d(dtype=float),
+    inv_rho: wp.array3d(dtype=float),
+    sigma: float,
+    axis: int,
+    dx: float,
+    dt: float,
+    vel: wp.array3d(dtype=float),
+):
+    """The pressure jump [p] = sigma kappa across the liquid's surface (Kang, Fedkiw & Liu 2000).
+
+    On a face between a liquid cell L and a gas or empty cell N, the projection must see
+    p_N - p_L = sigma kappa at the surface. Adding dt/rho_f sigma kappa / dx to u* on that face is
+    the same as putting the jump into the right-hand side and into the pressure gradient, so the
+    pressure operator is untouched. kappa is interpolated to where psi crosses zero.
+    """
+    i, j, k = wp.tid()
+    if inv_rho[i, j, k] == 0.0:
+        return
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    liquid_lo = cell_type_at(types, lo) == FLUID and phase[lo[0], lo[1], lo[2]] == PHASE_LIQUID
+    liquid_hi = cell_type_at(types, hi) == FLUID and phase[hi[0], hi[1], hi[2]] == PHASE_LIQUID
+    if liquid_lo == liquid_hi:
+        return
+    cl = lo
+    cn = hi
+    orient = 1.0  # the jump p_hi - p_lo equals +sigma kappa when the liquid is on the low side
+    if liquid_hi:
+        cl = hi
+        cn = lo
+        orient = -1.0
+    psi_l = level_at(level, types, cl, cl)
+    psi_n = level_at(level, types, cn, cl)
+    theta = float(0.5)
+    if psi_l - psi_n > 1.0e-6:
+        theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)
+    kappa = (1.0 - theta) * curvature[cl[0], cl[1], cl[2]] + theta * curvature[cn[0], cn[1], cn[2]]
+    vel[i, j, k] = vel[i, j, k] + dt * inv_rho[i, j, k] * orient * sigma * kappa / dx

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from warp_mpm_bubbles.diagnostics import gas_centroid_and_diameter, phase_leak
+from warp_mpm_bubbles.diagnostics import bubble_volumes, gas_centroid_and_diameter, phase_leak
 
 DX = 0.1
 CELLS = (20, 20, 1)
@@ -51,3 +51,14 @@ def test_centroid_and_equivalent_diameter():
     centroid, d_e = gas_centroid_and_diameter(pos, is_gas, vol / DX, 2)
     np.testing.assert_allclose(centroid[:2], (1.0, 1.0))
     assert np.isclose(d_e, 2 * np.sqrt(0.64 / np.pi))
+
+
+def test_bubble_volumes_counts_separate_bubbles():
+    pos, is_gas, vol = scene()
+    second = block((0.1, 0.1), (0.3, 0.3))  # a second, smaller gas square far from the first
+    inside = (pos[:, 0] > 0.1) & (pos[:, 0] < 0.3) & (pos[:, 1] > 0.1) & (pos[:, 1] < 0.3)
+    pos = np.concatenate([pos[~inside], second])
+    is_gas = np.concatenate([is_gas[~inside], np.ones(len(second), bool)])
+    vol = np.full(len(pos), vol[0])
+    volumes = bubble_volumes(pos, is_gas, vol, DX, CELLS, 2)
+    np.testing.assert_allclose(volumes, [0.64 * DX, 0.04 * DX])  # areas 0.8^2 and 0.2^2, slab DX thick

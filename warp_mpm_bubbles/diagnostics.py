@@ -64,3 +64,35 @@ def gas_centroid_and_diameter(positions, is_gas, volumes, dim: int) -> tuple[np.
     total = v.sum()
     d_e = 2.0 * np.sqrt(total / np.pi) if dim == 2 else (6.0 * total / np.pi) ** (1.0 / 3.0)
     return centroid, float(d_e)
+
+
+def bubble_volumes(positions, is_gas, volumes, dx: float, cells, dim: int) -> np.ndarray:
+    """Gas volume of each bubble, largest first: connected gas-dominated cells (face neighbours).
+
+    Labels spread by repeated minimum over face neighbours (host numpy, a diagnostic: cost grows
+    with the bubbles' extent in cells).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    is_gas = np.asarray(is_gas, dtype=bool)
+    volumes = np.asarray(volumes, dtype=np.float64)
+    if not is_gas.any():
+        return np.zeros(0)
+    dom, flat = _dominance(positions, is_gas, volumes, dx, tuple(cells), dim)
+    gas_cell = dom > 0
+    big = np.iinfo(np.int64).max
+    labels = np.where(gas_cell, np.arange(gas_cell.size).reshape(gas_cell.shape), big)
+    while True:
+        padded = np.pad(labels, 1, constant_values=big)
+        best = labels.copy()
+        for axis in range(gas_cell.ndim):
+            for shift in (-1, 1):
+                neighbour = np.roll(padded, shift, axis=axis)[tuple(slice(1, -1) for _ in range(gas_cell.ndim))]
+                best = np.minimum(best, neighbour)
+        best = np.where(gas_cell, best, big)
+        if np.array_equal(best, labels):
+            break
+        labels = best
+    particle_label = labels.ravel()[flat]
+    keep = is_gas & (particle_label != big)  # gas particles in liquid-dominated cells: dispersed, no bubble
+    _, inverse = np.unique(particle_label[keep], return_inverse=True)
+    return np.sort(np.bincount(inverse, weights=volumes[keep]))[::-1]

@@ -107,11 +107,12 @@ def test_dam_break_example_column_falls_and_spreads(tmp_path):
     assert last[:, 0].max() > first[:, 0].max() + 0.02  # and its foot has run out along the floor
 
 
-def test_rising_bubble_example_writes_water_and_air(tmp_path):
+@pytest.mark.parametrize("example", ["rising_bubble", "bubble_merge", "bubble_column"])
+def test_bubble_examples_write_water_and_air(tmp_path, example):
     from pxr import Usd, UsdGeom
 
     out = tmp_path / "bubble.usdc"
-    cmd = [sys.executable, str(ROOT / "examples" / "rising_bubble.py"), "--device", "cpu", "--num-frames", "1",
+    cmd = [sys.executable, str(ROOT / "examples" / f"{example}.py"), "--device", "cpu", "--num-frames", "1",
            "--stage-path", str(out), "--quiet"]
     subprocess.run(cmd, check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     stage = Usd.Stage.Open(str(out))

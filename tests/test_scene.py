@@ -279,6 +279,8 @@ BAD = [
      ["[materials.water].surface_tension", "-0.07", ">= 0"]),
     ("surface tension on a gas", setk("materials", "oil", value={"kind": "gas", "surface_tension": 0.07}),
      ["[materials.oil].surface_tension", "belongs to the liquid"]),
+    ("negative viscosity", setk("materials", "water", "viscosity", value=-1e-3),
+     ["[materials.water].viscosity", "-0.001", ">= 0"]),
 ]
 
 
@@ -300,7 +302,7 @@ def test_unknown_key_message_from_file(tmp_path):
     with pytest.raises(SceneError) as err:
         load_scene(path)
     assert str(err.value) == (f"{path}: unknown key [materials.water].densty = 1000.0; "
-                              "allowed keys: kind, density, color, eos, gamma, surface_tension (did you mean 'density'?)")
+                              "allowed keys: kind, density, color, eos, gamma, surface_tension, viscosity (did you mean 'density'?)")
     assert err.value.key == "[materials.water].densty" and err.value.value == 1000.0
 
 

@@ -516,3 +516,53 @@ def vent_exposed_gas(
     if exposed:
         active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
+
+
+@wp.kernel
+def diffuse_velocity(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    inv_rho: wp.array3d(dtype=float),
+    vel: wp.array3d(dtype=float),
+    nu_liquid: float,
+    nu_gas: float,
+    axis: int,
+    dim: int,
+    dx: float,
+    dt: float,
+    out: wp.array3d(dtype=float),
+):
+    """Explicit viscosity: u += dt nu lap(u) on the faces the pressure acts on, nu of the phase beside
+    the face (the liquid's if either side is liquid).
+
+    A neighbour face outside the material contributes nothing (zero gradient: a stress-free
+    surface or a free-slip wall); a tangential neighbour inside a no-slip wall is taken as -u, so
+    the velocity is zero on the wall.
+    """
+    i, j, k = wp.tid()
+    u = vel[i, j, k]
+    out[i, j, k] = u
+    if inv_rho[i, j, k] == 0.0:
+        return
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    nu = nu_gas
+    if (cell_type_at(types, lo) == FLUID and phase[lo[0], lo[1], lo[2]] == PHASE_LIQUID) or (
+        cell_type_at(types, hi) == FLUID and phase[hi[0], hi[1], hi[2]] == PHASE_LIQUID
+    ):
+        nu = nu_liquid
+    lap = float(0.0)
+    for a in range(dim):
+        for s in range(2):
+            n = hi + (2 * s - 1) * unit(a)
+            if n[0] < 0 or n[1] < 0 or n[2] < 0 or n[0] >= vel.shape[0] or n[1] >= vel.shape[1] or n[2] >= vel.shape[2]:
+                continue
+            t_a = cell_type_at(types, n - unit(axis))
+            t_b = cell_type_at(types, n)
+            if inv_rho[n[0], n[1], n[2]] > 0.0:
+                lap += vel[n[0], n[1], n[2]] - u
+            elif a == axis and (is_solid(t_a) or is_solid(t_b)):
+                lap += vel[n[0], n[1], n[2]] - u  # the wall's normal face: the wall's velocity, 0
+            elif a != axis and (t_a == SOLID_NO_SLIP or t_b == SOLID_NO_SLIP):
+                lap += -2.0 * u  # mirrored across a no-slip wall half a cell away
+    out[i, j, k] = u + dt * nu * lap / (dx * dx)

@@ -205,6 +205,7 @@ class Material:
     eos: str | None = None  # gas only: isothermal (default) | adiabatic | incompressible
     gamma: float = 1.4  # adiabatic index, used by eos = "adiabatic"
     surface_tension: float = 0.0  # liquid only, N/m (water-air 0.072); 0 = the stage does not run
+    viscosity: float = 0.0  # dynamic, Pa s (water 1.0e-3, air 1.8e-5); 0 everywhere = the stage does not run
 
     @property
     def is_gas(self) -> bool:
@@ -226,6 +227,7 @@ class Material:
             c.fail(f"{t}.eos", self.eos, f"only gas materials have an equation of state; remove it or set "
                                          f"{t}.kind = \"gas\"")
         self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, ge=0)
+        self.viscosity = c.number(f"{t}.viscosity", self.viscosity, ge=0)
         if self.kind == "gas" and self.surface_tension > 0:
             c.fail(f"{t}.surface_tension", self.surface_tension,
                    "surface tension belongs to the liquid (it acts on its surface with gas and air); "

@@ -118,6 +118,11 @@ class Simulation:
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
         liquids = [m for m in self.scene.materials.values() if not m.is_gas]
         self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # the stage runs only if > 0
+        # Kinematic viscosity per phase (the largest of its materials); the stage runs only if > 0.
+        nu = lambda ms: max((m.viscosity / m.density for m in ms), default=0.0)  # noqa: E731
+        self.nu_liquid = nu(liquids)
+        self.nu_gas = nu([m for m in self.scene.materials.values() if m.is_gas])
+        self.nu_max = max(self.nu_liquid, self.nu_gas)
         if self.sigma > 0.0:
             self.curvature, self.level, self.level_tmp = cells(), cells(), cells()
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
@@ -189,6 +194,13 @@ class Simulation:
                 self._launch(gk.face_inverse_density, g.face_shape(a),
                              [self.types, self.phase_cells, self.liq_mass, self.liq_volume, self.gas_mass,
                               self.gas_volume, two_phase, self._interface, a, 1.0 / g.dx**3, self.inv_rho[a]])
+        if self.nu_max > 0.0:
+            with self.timer("viscosity"):
+                for a in g.axes:
+                    self._launch(gk.diffuse_velocity, g.face_shape(a),
+                                 [self.types, self.phase_cells, self.inv_rho[a], self.vel[a], self.nu_liquid,
+                                  self.nu_gas, a, g.dim, g.dx, dt, self.vel_tmp[a]])
+                    self.vel[a], self.vel_tmp[a] = self.vel_tmp[a], self.vel[a]
         if self.sigma > 0.0:
             with self.timer("tension"):
                 level, smoothed = self.level, self.level_tmp
@@ -256,7 +268,7 @@ class Simulation:
     # ---------------------------------------------------------------------------- time steps
     def stable_dt(self) -> float:
         """CFL limit, with sqrt(|g| dx) added to the speed so a fluid at rest still takes safe steps;
-        the capillary limit when surface tension is on; max_dt."""
+        the capillary and viscous limits when those stages are on; max_dt."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self._gravity))
         speed = self._max_speed + math.sqrt(g_mag * self.grid.dx)
@@ -265,6 +277,9 @@ class Simulation:
             # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
             rho = sum(sorted((m.density for m in self.scene.materials.values()), reverse=True)[:2])
             dt = min(dt, math.sqrt(rho * self.grid.dx**3 / (4.0 * math.pi * self.sigma)))
+        if self.nu_max > 0.0:
+            # Explicit diffusion: dt <= dx^2 / (2 dim nu) (DESIGN §4: rho dx^2 / (6 mu) in 3D).
+            dt = min(dt, self.grid.dx**2 / (2 * self.grid.dim * self.nu_max))
         if s.max_dt is not None:
             dt = min(dt, s.max_dt)
         return dt

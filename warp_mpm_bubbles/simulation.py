@@ -5,10 +5,12 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid):
     p2g       particles -> face momenta and masses, cell mass/volume, particle count per cell
               (+ gas mass, volume, pressure and compressibility per cell when the scene has gas)
     grid      u* = p/m + dt g, cell types (+ which are gas), walls, face densities, the system
-    pressure  PCG solve of the one two-phase system, u = u* - dt/rho grad p
+    viscosity (only with viscosity > 0) explicit diffusion of u*
+    tension   (only with surface_tension > 0) the Laplace jump on the liquid's surface faces
+    pressure  multigrid-PCG solve of the one two-phase system, u = u* - dt/rho grad p
     extend    extrapolate u past the liquid, enforce walls
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
-    vent      (gas only) gas reaching the atmosphere leaves the simulation, its mass booked
+    vent      (gas only) gas reaching open air leaves the simulation, its mass booked
 
 The time step follows the CFL limit and lands exactly on frame times. Inside a step the host reads
 only scalars (CG reductions, counters, the maximum particle speed).
@@ -116,15 +118,6 @@ class Simulation:
         self.gas_count = gas_cells(wp.int32)
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
-        liquids = [m for m in self.scene.materials.values() if not m.is_gas]
-        self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # the stage runs only if > 0
-        # Kinematic viscosity per phase (the largest of its materials); the stage runs only if > 0.
-        nu = lambda ms: max((m.viscosity / m.density for m in ms), default=0.0)  # noqa: E731
-        self.nu_liquid = nu(liquids)
-        self.nu_gas = nu([m for m in self.scene.materials.values() if m.is_gas])
-        self.nu_max = max(self.nu_liquid, self.nu_gas)
-        if self.sigma > 0.0:
-            self.curvature, self.level, self.level_tmp = cells(), cells(), cells()
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed = wp.zeros(1, dtype=float, device=dev)
         self.nonfinite = wp.zeros(1, dtype=wp.int32, device=dev)  # particles p2g refused this step
@@ -137,6 +130,20 @@ class Simulation:
         gravity = tuple(self.scene.domain.gravity) + (0.0,) * (3 - g.dim)
         self._gravity = tuple(float(a) for a in gravity)
         self._interface = INTERFACES.index(self.scene.solver.interface)
+        self._init_effects()
+
+    def _init_effects(self):
+        """Settings and arrays of the optional stages; a stage the scene does not ask for gets none."""
+        g, dev = self.grid, self.device
+        materials = list(self.scene.materials.values())
+        liquids = [m for m in materials if not m.is_gas]
+        self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # tension runs only if > 0
+        if self.sigma > 0.0:
+            self.curvature, self.level, self.level_tmp = (wp.zeros(g.cells, dtype=float, device=dev) for _ in range(3))
+        # Kinematic viscosity per phase (the largest of its materials); viscosity runs only if > 0.
+        nu = lambda ms: max((m.viscosity / m.density for m in ms), default=0.0)  # noqa: E731
+        self.nu_liquid, self.nu_gas = nu(liquids), nu([m for m in materials if m.is_gas])
+        self.nu_max = max(self.nu_liquid, self.nu_gas)
         # "Up" for venting: against the strongest gravity component (axis -1: no gravity, no up).
         g_abs = [abs(a) for a in self._gravity[: g.dim]]
         up_axis = int(np.argmax(g_abs)) if max(g_abs) > 0.0 else -1

@@ -70,30 +70,56 @@ def test_run_writes_every_frame_and_a_summary(tmp_path, capsys):
         assert stage in err
 
 
-def test_killed_run_keeps_its_finished_frames(tmp_path):
-    scene = small_scene(tmp_path, frames=500)
-    out = tmp_path / "small.usdc"
+def run_and_kill(scene, out, min_frames=3):
+    """Start `warp-mpm-bubbles run` in a subprocess and SIGKILL it once min_frames are on disk."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, "-m", "warp_mpm_bubbles.cli", "run", str(scene), "--quiet"],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.time() + 120
         while time.time() < deadline:
-            if out.exists() and read_frames(out)["end"] >= 3:
+            if out.exists() and read_frames(out)["end"] >= min_frames:
                 break
             assert proc.poll() is None, proc.stderr.read().decode()
             time.sleep(0.2)
         else:
-            pytest.fail("the run wrote no 3 frames in 120 s")
+            pytest.fail(f"the run wrote no {min_frames} frames in 120 s")
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait()
+
+
+def test_killed_run_keeps_its_finished_frames(tmp_path):
+    scene = small_scene(tmp_path, frames=500)
+    out = tmp_path / "small.usdc"
+    run_and_kill(scene, out)
     frames = read_frames(out)
     assert frames["end"] >= 3
     assert sorted(frames["frames"]) == list(range(int(frames["end"]) + 1))
     n = len(frames["frames"][0]["ids"])
     for f in frames["frames"].values():
         assert len(f["positions"]) == n and np.isfinite(f["positions"]).all()
+
+
+def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
+    frames = 150
+    scene = small_scene(tmp_path, frames=frames)
+    out = tmp_path / "small.usdc"
+    run_and_kill(scene, out, min_frames=3)
+    killed_at = int(read_frames(out)["end"])
+    assert killed_at < frames, "the run finished before it could be killed; make it longer"
+    assert main(["run", str(scene), "--resume", "--quiet"]) == 0
+    reference = tmp_path / "reference.usdc"
+    assert main(["run", str(scene), "--stage-path", str(reference), "--quiet"]) == 0
+    resumed, whole = read_frames(out), read_frames(reference)
+    assert sorted(resumed["frames"]) == list(range(frames + 1))
+    for f in (killed_at, killed_at + 1, frames):  # bit for bit on the CPU device
+        np.testing.assert_array_equal(resumed["frames"][f]["positions"], whole["frames"][f]["positions"])
+
+
+def test_resume_without_a_checkpoint_is_refused(tmp_path, capsys):
+    assert main(["run", str(small_scene(tmp_path)), "--resume"]) == 1
+    assert "nothing to resume" in capsys.readouterr().err
 
 
 def test_dam_break_example_column_falls_and_spreads(tmp_path):

@@ -14,6 +14,8 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--num-frames", type=int, default=None, help="frames to simulate (overrides the scene)")
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue a killed run from its last checkpoint, keeping its frames")
 
 
 def scene_with_overrides(path, args) -> "object":
@@ -34,17 +36,22 @@ def run_example(scene_path, description: str, argv=None) -> int:
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _run(scene, args)
-    return 0
+    return _run(scene, args)
 
 
-def _run(scene, args):
+def _run(scene, args) -> int:
     import warp as wp  # deferred: `check` and bad scenes never start Warp
 
     wp.config.quiet = True
     from .runner import run_scene
+    from .simulation import SimulationError
 
-    run_scene(scene, device=args.device, progress=not args.quiet)
+    try:
+        run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume)
+    except SimulationError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main(argv=None) -> int:
@@ -78,8 +85,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
 
-    _run(scene, args)
-    return 0
+    return _run(scene, args)
 
 
 def _check(path) -> int:

@@ -9,7 +9,8 @@ import sys
 import time
 from dataclasses import dataclass
 
-from .simulation import Simulation
+from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
+from .simulation import Simulation, SimulationError
 from .usd_output import StageWriter
 
 
@@ -49,23 +50,35 @@ def _clock(seconds: float) -> str:
     return f"{m}m{s:02d}s" if m else f"{s}s"
 
 
-def run_scene(scene, *, device=None, progress: bool = True, log=None) -> RunResult:
+def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bool = False) -> RunResult:
     """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path.
 
-    Progress and the closing summary go to `log` (default: the sys.stderr of the moment).
+    After every frame a checkpoint is saved beside the frames; resume=True continues from it
+    (a killed run), keeping the frames already written. Progress and the closing summary go to
+    `log` (default: the sys.stderr of the moment).
     """
     log = log or sys.stderr
     start = time.perf_counter()
     sim = Simulation(scene, device=device)
     out = scene.output
+    checkpoint = checkpoint_path(out.path)
+    resume_after = None
+    if resume:
+        if not checkpoint.exists():
+            raise SimulationError(f"nothing to resume: no checkpoint at {checkpoint}; run without --resume")
+        load_checkpoint(sim, checkpoint)
+        resume_after = sim.frame
+        if progress:
+            log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
     materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
     bar = ProgressBar(out.frames, stream=log) if progress else None
     with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
-                     format=out.format, up_axis=out.up_axis) as writer:
-        _write(sim, writer)
-        for _ in range(out.frames):
+                     format=out.format, up_axis=out.up_axis, resume_after=resume_after) as writer:
+        if resume_after is None:
+            _write(sim, writer, checkpoint)
+        while sim.frame < out.frames:
             sim.advance_frame()
-            _write(sim, writer)
+            _write(sim, writer, checkpoint)
             if bar:
                 bar.update(sim.frame, sim.time, sim.stats.steps)
     result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
@@ -74,10 +87,12 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None) -> RunResu
     return result
 
 
-def _write(sim: Simulation, writer: StageWriter):
+def _write(sim: Simulation, writer: StageWriter, checkpoint):
+    """The frame first (durable when write_frame returns), then the checkpoint that resumes after it."""
     with sim.timer("output"):
         p = sim.particles_numpy()
         writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"])
+        save_checkpoint(sim, checkpoint)
 
 
 def summary(result: RunResult) -> str:

@@ -66,7 +66,9 @@ class StageWriter:
 
     def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
                  particle_radius: float, format: str = "instancer", up_axis: str = "Y",
-                 meters_per_unit: float = 1.0):
+                 meters_per_unit: float = 1.0, resume_after: int | None = None):
+        """resume_after=k keeps the frames already on disk up to k (a resumed run) and goes on
+        from k + 1; otherwise an existing output is replaced."""
         t0 = time.perf_counter()
         if format not in FORMATS:
             raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
@@ -91,17 +93,27 @@ class StageWriter:
         self._last = None
         self._closed = False
 
-        # Overwrite: drop the old top file first so it never points at missing frames.
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.path.unlink(missing_ok=True)
-        shutil.rmtree(self._frames_dir, ignore_errors=True)
-        self._frames_dir.mkdir()
+        start = None
+        if resume_after is not None:
+            if not self.path.exists():
+                raise FileNotFoundError(f"cannot resume: {self.path} does not exist")
+            start = Sdf.Layer.OpenAsAnonymous(str(self.path)).startTimeCode  # not the layer cache
+        else:
+            # Overwrite: drop the old top file first so it never points at missing frames.
+            self.path.unlink(missing_ok=True)
+            shutil.rmtree(self._frames_dir, ignore_errors=True)
+            self._frames_dir.mkdir()
 
         self._top = self._build_top(materials, fps, up_axis, meters_per_unit)
         manifest = Sdf.Layer.CreateAnonymous(ext)
         self._declare(manifest)
         _atomic_export(manifest, self._manifest)
-        _atomic_export(self._top, self.path)  # valid (empty) stage even before frame 0
+        if start is None:
+            _atomic_export(self._top, self.path)  # valid (empty) stage even before frame 0
+        else:
+            self._top.startTimeCode = start
+            self._publish(int(resume_after))  # the kept frames stay visible from the first moment
         self.seconds += time.perf_counter() - t0
 
     def _build_top(self, materials, fps, up_axis, meters_per_unit) -> Sdf.Layer:
@@ -196,6 +208,11 @@ class StageWriter:
         # file, so gaps in the frame numbers are fine.
         if self._last is None:
             self._top.startTimeCode = frame
+        self._publish(frame)
+        self.seconds += time.perf_counter() - t0
+
+    def _publish(self, frame: int) -> None:
+        """Point the top file's clips at frames start..frame and replace it atomically."""
         self._top.endTimeCode = frame
         self._top.GetPrimAtPath("/World").SetInfo("clips", {"default": {
             "primPath": "/World",
@@ -207,7 +224,6 @@ class StageWriter:
         }})
         _atomic_export(self._top, self.path)
         self._last = frame
-        self.seconds += time.perf_counter() - t0
 
     def _validate(self, frame, positions, velocities, ids, material):
         pos = np.ascontiguousarray(positions, dtype=np.float32)

@@ -160,6 +160,12 @@ def at(a: wp.array3d(dtype=float), c: wp.vec3i):
     return a[c[0], c[1], c[2]]
 
 
+@wp.func
+def is_liquid_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i):
+    """A fluid cell on the liquid side of the interface (cells outside the array are not)."""
+    return cell_type_at(types, c) == FLUID and phase[c[0], c[1], c[2]] == PHASE_LIQUID
+
+
 @wp.kernel
 def face_inverse_density(
     types: wp.array3d(dtype=wp.int32),
@@ -547,9 +553,7 @@ def diffuse_velocity(
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     nu = nu_gas
-    if (cell_type_at(types, lo) == FLUID and phase[lo[0], lo[1], lo[2]] == PHASE_LIQUID) or (
-        cell_type_at(types, hi) == FLUID and phase[hi[0], hi[1], hi[2]] == PHASE_LIQUID
-    ):
+    if is_liquid_cell(types, phase, lo) or is_liquid_cell(types, phase, hi):
         nu = nu_liquid
     lap = float(0.0)
     for a in range(dim):

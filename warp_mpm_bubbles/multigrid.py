@@ -44,6 +44,7 @@ import math
 import warp as wp
 
 from .grid import EMPTY, FLUID
+from .grid_kernels import at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -96,10 +97,6 @@ def weight(L: Level, axis: int, f: wp.vec3i):
         return L.w_v[f[0], f[1], f[2]]
     return L.w_w[f[0], f[1], f[2]]
 
-
-@wp.func
-def at(x: wp.array3d(dtype=float), c: wp.vec3i):
-    return x[c[0], c[1], c[2]]
 
 
 @wp.func

@@ -73,7 +73,7 @@ class Simulation:
         self.frame = 0
         self._init_particles()
         self._init_grid()
-        self._max_speed = float(np.linalg.norm(self.particles_numpy()["velocities"], axis=1).max(initial=0.0))
+        self._max_speed = float(np.linalg.norm(self.v.numpy(), axis=1).max(initial=0.0))
 
     # ----------------------------------------------------------------------------------- state
     def _init_particles(self):
@@ -338,9 +338,6 @@ class Simulation:
     def pressure_numpy(self) -> np.ndarray:
         """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""
         return self.pressure.numpy()[self.grid.interior_slice()]
-
-    def cell_types_numpy(self) -> np.ndarray:
-        return self.types.numpy()[self.grid.interior_slice()]
 
     def liquid_volume(self) -> float:
         """Volume the particles fill: sum over cells of min(phi, 1) dx^3, phi the rest-volume fraction.

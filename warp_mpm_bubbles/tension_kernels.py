@@ -4,8 +4,7 @@ its smoothing and curvature, and the Laplace pressure jump on the faces of the l
 
 import warp as wp
 
-from .grid import FLUID, PHASE_LIQUID
-from .grid_kernels import cell_type_at, is_solid, unit
+from .grid_kernels import cell_type_at, is_liquid_cell, is_solid, unit
 
 wp.set_module_options({"enable_backward": False})
 
@@ -132,8 +131,8 @@ def apply_surface_tension(
         return
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
-    liquid_lo = cell_type_at(types, lo) == FLUID and phase[lo[0], lo[1], lo[2]] == PHASE_LIQUID
-    liquid_hi = cell_type_at(types, hi) == FLUID and phase[hi[0], hi[1], hi[2]] == PHASE_LIQUID
+    liquid_lo = is_liquid_cell(types, phase, lo)
+    liquid_hi = is_liquid_cell(types, phase, hi)
     if liquid_lo == liquid_hi:
         return
     cl = lo

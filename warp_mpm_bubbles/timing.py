@@ -18,7 +18,6 @@ class StageTimer:
     def __init__(self, device):
         self.device = device
         self.seconds: dict[str, float] = {}  # insertion order = order of first run
-        self.calls: dict[str, int] = {}
 
     @contextmanager
     def __call__(self, stage: str):
@@ -29,7 +28,6 @@ class StageTimer:
             if self.device.is_cuda:
                 wp.synchronize_device(self.device)
             self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
-            self.calls[stage] = self.calls.get(stage, 0) + 1
 
     @property
     def stages_run(self) -> list[str]:

@@ -78,7 +78,8 @@ def run_and_kill(scene, out, min_frames=3):
     try:
         deadline = time.time() + 120
         while time.time() < deadline:
-            if out.exists() and read_frames(out)["end"] >= min_frames:
+            # end is None while the reader races the writer's first publish: not ready yet
+            if out.exists() and (read_frames(out)["end"] or -1) >= min_frames:
                 break
             assert proc.poll() is None, proc.stderr.read().decode()
             time.sleep(0.2)

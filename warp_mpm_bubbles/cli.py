@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .quality import PRESETS
 from .scene import SceneError, load_scene
 
 
@@ -13,14 +14,19 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s)')
     parser.add_argument("--num-frames", type=int, default=None, help="frames to simulate (overrides the scene)")
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
+    parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
+                        help="quality preset; replaces the scene's particles_per_cell, cfl and cg_tolerance "
+                             "(README: error and cost per preset)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--resume", action="store_true",
                         help="continue a killed run from its last checkpoint, keeping its frames")
 
 
 def scene_with_overrides(path, args) -> "object":
-    """Load and validate a scene, applying --stage-path and --num-frames; raises SceneError."""
+    """Load and validate a scene, applying --quality, --stage-path and --num-frames; raises SceneError."""
     scene = load_scene(path)
+    if args.quality is not None:
+        scene = scene.with_quality(args.quality)
     if args.num_frames is not None or args.stage_path is not None:
         scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
     return scene.validate()

@@ -23,6 +23,7 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
+from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
@@ -362,10 +363,11 @@ SHAPE_TYPES = {cls.type_name: cls for cls in (Box, Sphere, Cylinder)}
 
 @dataclass
 class SolverSettings:
-    particles_per_cell: int | None = None
-    cfl: float = 0.5
+    quality: str = DEFAULT_QUALITY  # preview | production | reference: fills the unset settings below
+    particles_per_cell: int | None = None  # None: from the quality preset (production: 4 in 2D, 8 in 3D)
+    cfl: float | None = None  # None: from the preset (production: 0.5)
     max_dt: float | None = None
-    cg_tolerance: float = 1e-5
+    cg_tolerance: float | None = None  # None: from the preset (production: 1e-5)
     cg_max_iterations: int = 2000
     preconditioner: str = "multigrid"  # V-cycle PCG; "jacobi" needs 10-75x the iterations (benchmarks/)
     interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
@@ -374,8 +376,10 @@ class SolverSettings:
 
     def _validate(self, c: _Checker, dim):
         t = "[solver]"
-        if self.particles_per_cell is None:
-            self.particles_per_cell = 4 if dim == 2 else 8
+        self.quality = c.choice(f"{t}.quality", self.quality, tuple(PRESETS))
+        for name in GOVERNED:
+            if getattr(self, name) is None:
+                setattr(self, name, preset_value(self.quality, name, dim))
         self.particles_per_cell = c.number(f"{t}.particles_per_cell", self.particles_per_cell,
                                            ge=1, le=64, whole=True)
         self.cfl = c.number(f"{t}.cfl", self.cfl, gt=0, le=2)
@@ -539,6 +543,14 @@ class Scene:
             "shapes": [{"type": s.type_name, **_plain(s)} for s in self.shapes],
             "output": _plain(self.output),
         }
+
+    def with_quality(self, quality: str) -> Scene:
+        """A validated copy at another quality preset; the preset replaces the scene's own values."""
+        new = copy.deepcopy(self)
+        new.solver.quality = quality
+        for name in GOVERNED:
+            setattr(new.solver, name, None)
+        return new.validate()
 
     def replace_output(self, path=None, frames=None) -> Scene:
         """A validated copy with another output path and/or frame count."""

@@ -1,0 +1,25 @@
+"""Quality presets: named solver settings that trade accuracy for time.
+
+A preset fills the [solver] settings it governs when the scene leaves them unset; a value the
+scene sets itself wins. `--quality` on the command line replaces the scene's own values (the
+user's latest word). The values come from the measured accuracy-vs-time frontier
+(`benchmarks/accuracy_vs_time.py`, docs/accuracy_vs_time.md); the resolution stays the scene's
+[domain].cell_size, the largest lever, which the same table prices separately.
+"""
+
+from __future__ import annotations
+
+DEFAULT_QUALITY = "production"
+
+# particles_per_cell is given per dimension: (2D, 3D).
+PRESETS: dict[str, dict] = {
+    "preview": {"particles_per_cell": (4, 8), "cfl": 1.0, "cg_tolerance": 1e-3},
+    "production": {"particles_per_cell": (4, 8), "cfl": 0.5, "cg_tolerance": 1e-5},
+    "reference": {"particles_per_cell": (9, 27), "cfl": 0.25, "cg_tolerance": 1e-7},
+}
+GOVERNED = ("particles_per_cell", "cfl", "cg_tolerance")
+
+
+def preset_value(quality: str, name: str, dim: int):
+    value = PRESETS[quality][name]
+    return value[dim - 2] if isinstance(value, tuple) else value

@@ -1,9 +1,10 @@
 """Checkpoints: the whole simulation state after a finished frame, so `run --resume` continues a
 killed run and reaches what an uninterrupted run would (bit for bit on the CPU device).
 
-Only what a step reads from the previous one is saved: the particle state, the pressure (the
-solver's warm start), the vented gas, the clock and the last maximum speed (it sets the next time
-step). Grid arrays are rebuilt by every step and are not saved.
+Only what a step reads from the previous one is saved: every per-particle array (effects add
+theirs), the pressure (the solver's warm start), the vented gas, the effects' host state (emitter
+progress), the clock and the last maximum speed (it sets the next time step). Grid arrays are
+rebuilt by every step and are not saved.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-STATE = ("x", "v", "C", "J", "active", "pressure", "vented_mass")
+GRID_STATE = ("pressure", "vented_mass")
 
 
 def checkpoint_path(stage_path) -> Path:
@@ -35,7 +36,10 @@ def save_checkpoint(sim, path) -> None:
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        np.savez(f, **{name: getattr(sim, name).numpy() for name in STATE},
+        n = sim.num_particles
+        np.savez(f, **{f"particle_{name}": getattr(sim, name).numpy()[:n] for name in sim.particle_fields},
+                 **{name: getattr(sim, name).numpy() for name in GRID_STATE},
+                 **{f"host_{name}": value for name, value in sim.host_state.items()},
                  time=sim.time, frame=sim.frame, max_speed=sim._max_speed, steps=sim.stats.steps,
                  fingerprint=_fingerprint(sim.scene))
         f.flush()
@@ -51,11 +55,18 @@ def load_checkpoint(sim, path) -> None:
         if str(data["fingerprint"]) != _fingerprint(sim.scene):
             raise SimulationError(f"{path} was written by a different scene (domain, materials, shapes or "
                                   f"solver settings changed); run without --resume to start over")
-        if data["x"].shape[0] != sim.num_particles:
-            raise SimulationError(f"{path} holds {data['x'].shape[0]} particles, the scene seeds "
-                                  f"{sim.num_particles}; run without --resume to start over")
-        for name in STATE:
+        n = data["particle_x"].shape[0]
+        if n < sim.num_particles:
+            raise SimulationError(f"{path} holds {n} particles, the scene seeds {sim.num_particles}; run without "
+                                  f"--resume to start over")
+        sim._reserve(n)
+        sim.num_particles = n
+        for name in sim.particle_fields:
+            getattr(sim, name)[:n].assign(data[f"particle_{name}"])
+        for name in GRID_STATE:
             getattr(sim, name).assign(data[name])
+        for name in sim.host_state:
+            sim.host_state[name] = data[f"host_{name}"].copy()
         sim.time, sim.frame = float(data["time"]), int(data["frame"])
         sim._max_speed = float(data["max_speed"])
         sim.stats.steps = int(data["steps"])

@@ -19,9 +19,13 @@ FLUID = 1
 SOLID_FREE_SLIP = 2
 SOLID_NO_SLIP = 3
 
-# Phase of a fluid cell (and of a particle).
+# Phase of a fluid cell (and of a particle). Particles of the later phases are Lagrangian: the
+# core transfers skip them and their effect moves them (foam rides the surface; sub-grid bubbles
+# follow buoyancy and drag).
 PHASE_LIQUID = 0
 PHASE_GAS = 1
+PHASE_FOAM = 2
+PHASE_SUBGRID = 3
 
 # Gas-liquid interface methods, as indices of scene.INTERFACES.
 INTERFACE_SHARP = 0

@@ -7,10 +7,7 @@ given and what is allowed, before any simulation work starts.
 from __future__ import annotations
 
 import copy
-import difflib
 import math
-import numbers
-import operator
 import os
 from dataclasses import dataclass, field, fields, MISSING
 from pathlib import Path
@@ -23,114 +20,26 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
+from .scene_checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, dim_why
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
+from .scene_effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from .seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
 WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
-MATERIAL_KINDS = ("liquid", "gas")  # add "foam" here when the solver supports it
+MATERIAL_KINDS = ("liquid", "gas", "foam")  # foam: made by [effects.foam] from gas at the surface
 GAS_LAWS = ("isothermal", "adiabatic", "incompressible")  # p = B rho, p ~ rho^gamma, density ratio only
 INTERFACES = ("sharp", "baseline")  # ghost-fluid gas-liquid faces, or the published "any gas particle" cells
 # Per-kind defaults: water, and air at 20 C and 1 atm.
 KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
-                 "gas": {"density": 1.2, "color": (0.92, 0.95, 1.0), "eos": "isothermal"}}
+                 "gas": {"density": 1.2, "color": (0.92, 0.95, 1.0), "eos": "isothermal"},
+                 "foam": {"density": 50.0, "color": (1.0, 1.0, 1.0)}}  # foam: ~5% liquid, the rest air
 PRECONDITIONERS = ("multigrid", "jacobi", "none")
 OUTPUT_FORMATS = ("instancer", "points", "both")
 UP_AXES = ("Y", "Z")
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
-AXES = ("x", "y", "z")
-_LIMITS = (("gt", ">", operator.gt), ("ge", ">=", operator.ge), ("lt", "<", operator.lt), ("le", "<=", operator.le))
 
 
-class SceneError(ValueError):
-    """A scene was refused; the message names the file, key path, value and the fix."""
-
-    def __init__(self, message: str, key: str = "", value=None, allowed: str = ""):
-        super().__init__(message)
-        self.key, self.value, self.allowed = key, value, allowed
-
-
-def _fmt(v) -> str:
-    """A value as the user wrote it (repr keeps 1000.0 and 'text' recognisable)."""
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + "}"
-    if isinstance(v, np.generic):
-        v = v.item()
-    return repr(v)
-
-
-def _g(v) -> str:
-    """A computed number or vector, short."""
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_g(x) for x in v) + "]"
-    return f"{float(v):.10g}"
-
-
-def _did_you_mean(word, options) -> str:
-    match = difflib.get_close_matches(str(word), [str(o) for o in options], n=1)
-    return f" (did you mean '{match[0]}'?)" if match else ""
-
-
-class _Checker:
-    """Type and range checks; each failure raises one SceneError prefixed with the source."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def fail(self, key, value, allowed, shown=None):
-        shown = _fmt(value) if shown is None else shown
-        raise SceneError(f"{self.source}: {key} = {shown}: {allowed}", key, value, allowed)
-
-    def missing(self, key, allowed):
-        raise SceneError(f"{self.source}: missing required key {key}; {allowed}", key, None, allowed)
-
-    def unknown_keys(self, table, d, allowed):
-        for k, v in d.items():
-            if k not in allowed:
-                key = f"{table}.{k}" if table else str(k)
-                hint = f"allowed keys: {', '.join(allowed)}{_did_you_mean(k, allowed)}"
-                raise SceneError(f"{self.source}: unknown key {key} = {_fmt(v)}; {hint}", key, v, hint)
-
-    def table(self, key, v):
-        if not isinstance(v, dict):
-            self.fail(key, v, "expected a table (key = value pairs)")
-        return v
-
-    def number(self, key, v, whole=False, **limits):
-        """A finite float (an int when `whole`) within the given limits gt, ge, lt, le."""
-        bounds = [f"{op} {_g(limits[name])}" for name, op, _ in _LIMITS if name in limits]
-        allowed = ("a whole number" if whole else "a finite number") + "".join(
-            f" {'and ' if i else ''}{b}" for i, b in enumerate(bounds))
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):  # bool is an int subclass
-            self.fail(key, v, f"expected {allowed}, got {type(v).__name__}")
-        if not math.isfinite(v) or (whole and not float(v).is_integer()):
-            self.fail(key, v, f"must be {allowed}")
-        x = int(v) if whole else float(v)
-        if not all(test(x, limits[name]) for name, _, test in _LIMITS if name in limits):
-            self.fail(key, v, f"must be {allowed}")
-        return x
-
-    def vector(self, key, v, n, why="", **limits):
-        if isinstance(v, (str, bytes)) or not isinstance(v, (list, tuple, np.ndarray)) or len(v) != n:
-            self.fail(key, v, f"expected a list of {n} numbers{why}")
-        return tuple(self.number(f"{key}[{i}]", x, **limits) for i, x in enumerate(v))
-
-    def choice(self, key, v, options):
-        if not isinstance(v, str) or v not in options:
-            allowed = "one of " + ", ".join(f"'{o}'" for o in options)
-            self.fail(key, v, f"expected {allowed}{_did_you_mean(v, options)}")
-        return v
-
-    def instance(self, key, v, cls, what):
-        if not isinstance(v, cls):
-            self.fail(key, v, f"expected {what}")
-        return v
-
-
-def _dim_why(dim):
-    return f" (the scene is {dim}D: [domain].size has {dim} entries)"
 
 
 @dataclass
@@ -178,7 +87,7 @@ class Domain:
                        f"are needed: enlarge [domain].size or reduce [domain].cell_size")
         if self.gravity is None:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
-        self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, _dim_why(dim))
+        self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, dim_why(dim))
         self.walls = self._resolve_walls(c, dim)
         self.ambient_pressure = c.number(f"{t}.ambient_pressure", self.ambient_pressure, gt=0)
 
@@ -254,9 +163,12 @@ class _Shape:
         if not isinstance(self.material, str) or self.material not in mats:
             c.fail(f"{key}.material", self.material,
                    f"no such material; defined materials: {', '.join(mats)}{_did_you_mean(self.material, mats)}")
+        if mats[self.material].kind == "foam":
+            c.fail(f"{key}.material", self.material, "foam is made at the surface by [effects.foam], not placed "
+                                                     "by a shape; use a liquid or gas material")
         self._validate_geometry(c, key, scene.domain)
         self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
-        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, _dim_why(dim))
+        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
         if self.pressure is not None:
             m = mats[self.material]
             if not m.is_gas or m.eos == "incompressible":
@@ -288,7 +200,7 @@ class Box(_Shape):
         return np.all((p >= np.array(self.min)) & (p <= np.array(self.max)), axis=1)
 
     def _validate_geometry(self, c, key, domain):
-        why = _dim_why(domain.dim)
+        why = dim_why(domain.dim)
         self.min = c.vector(f"{key}.min", self.min, domain.dim, why)
         self.max = c.vector(f"{key}.max", self.max, domain.dim, why)
         for a, (lo, hi) in enumerate(zip(self.min, self.max)):
@@ -314,7 +226,7 @@ class Sphere(_Shape):
         return np.sum((p - np.array(self.center)) ** 2, axis=1) <= self.radius ** 2
 
     def _validate_geometry(self, c, key, domain):
-        self.center = c.vector(f"{key}.center", self.center, domain.dim, _dim_why(domain.dim))
+        self.center = c.vector(f"{key}.center", self.center, domain.dim, dim_why(domain.dim))
         self.radius = c.number(f"{key}.radius", self.radius, gt=0)
 
 
@@ -345,7 +257,7 @@ class Cylinder(_Shape):
         return inside
 
     def _validate_geometry(self, c, key, domain):
-        self.center = c.vector(f"{key}.center", self.center, domain.dim, _dim_why(domain.dim))
+        self.center = c.vector(f"{key}.center", self.center, domain.dim, dim_why(domain.dim))
         self.radius = c.number(f"{key}.radius", self.radius, gt=0)
         self.axis = c.choice(f"{key}.axis", self.axis, AXES)
         a = AXES.index(self.axis)
@@ -441,12 +353,27 @@ class Scene:
     shapes: list[Box | Sphere | Cylinder]
     solver: SolverSettings = field(default_factory=SolverSettings)
     output: Output = field(default_factory=Output)
+    effects: dict = field(default_factory=dict)  # [effects.NAME] settings: Foam, SubgridBubbles, Entrainment
+    emitters: list = field(default_factory=list)  # LiquidInflow, GasInjector
+    colliders: list = field(default_factory=list)  # Collider
     name: str = "scene"
     source: str = "<python>"
 
     @property
     def dim(self) -> int:
         return self.domain.dim
+
+    @property
+    def effect_names(self) -> list[str]:
+        """The effects this scene runs, in step order; a stage of any other effect never runs."""
+        used = {s.material for s in self.shapes} | {e.material for e in self.emitters}
+        mats = [self.materials[m] for m in used]
+        names = ["gas"] if any(m.is_gas for m in mats) or "subgrid_bubbles" in self.effects else []
+        names += ["colliders"] if self.colliders else []
+        names += ["viscosity"] if any(m.viscosity > 0 for m in self.materials.values()) else []
+        names += ["surface_tension"] if any(m.surface_tension > 0 for m in self.materials.values()) else []
+        names += ["emitters"] if self.emitters else []
+        return names + [k for k in EFFECT_TYPES if k in self.effects]
 
     def validate(self) -> Scene:
         """Check everything and fill resolved defaults; raises SceneError. Idempotent."""
@@ -463,6 +390,7 @@ class Scene:
         for key, m in self.materials.items():
             c.instance(f"[materials.{key}]", m, Material, "a Material")
             m._validate(c, key)
+        self._validate_effects(c)
         c.instance("[shapes]", self.shapes, list, "a list of shapes ([[shapes]] tables)")
         if not self.shapes:
             c.fail("[shapes]", self.shapes, "no shapes defined; add at least one [[shapes]] table")
@@ -480,11 +408,30 @@ class Scene:
                                            f"or refine [domain].cell_size", shown=s.describe())
         return self
 
+    def _validate_effects(self, c: _Checker):
+        c.instance("[effects]", self.effects, dict, "a table of effects keyed by name")
+        c.unknown_keys("[effects]", self.effects, tuple(EFFECT_TYPES))
+        foam = self.effects.get("foam")
+        if isinstance(foam, Foam) and foam.material == "foam" and "foam" not in self.materials:
+            self.materials["foam"] = Material("foam", kind="foam")  # the default foam: white, 50 kg/m^3
+            self.materials["foam"]._validate(c, "foam")
+        for key, cls in EFFECT_TYPES.items():  # in this order: entrainment reads subgrid_bubbles
+            if key in self.effects:
+                c.instance(f"[effects.{key}]", self.effects[key], cls, f"a {cls.__name__}")
+                self.effects[key]._validate(c, f"[effects.{key}]", self)
+        for name, items, types in (("emitters", self.emitters, tuple(EMITTER_TYPES.values())),
+                                   ("colliders", self.colliders, (Collider,))):
+            c.instance(f"[{name}]", items, list, f"a list of [[{name}]] tables")
+            for i, item in enumerate(items):
+                c.instance(f"[{name}.{i}]", item, types, " or ".join(t.__name__ for t in types))
+                item._validate(c, f"[{name}.{i}]", self)
+
     @classmethod
     def from_dict(cls, d: dict, source: str = "<dict>") -> Scene:
         c = _Checker(source)
         c.table("the scene", d)
-        c.unknown_keys("", d, ("name", "domain", "solver", "materials", "shapes", "output"))
+        c.unknown_keys("", d, ("name", "domain", "solver", "materials", "shapes", "output", "effects", "emitters",
+                               "colliders"))
         if "domain" not in d:
             c.missing("[domain]", "add a [domain] table with size and cell_size")
         domain = _build(c, Domain, "[domain]", d["domain"])
@@ -502,12 +449,27 @@ class Scene:
                 c.missing(f"{key}.type", f"expected one of {', '.join(SHAPE_TYPES)}")
             kind = c.choice(f"{key}.type", s.pop("type"), tuple(SHAPE_TYPES))
             built.append(_build(c, SHAPE_TYPES[kind], key, s))
+        raw_effects = c.table("[effects]", d.get("effects", {}))
+        c.unknown_keys("[effects]", raw_effects, tuple(EFFECT_TYPES))
+        effects = {k: _build(c, EFFECT_TYPES[k], f"[effects.{k}]", v) for k, v in raw_effects.items()}
+        emitters = []
+        for i, e in enumerate(_table_list(c, "emitters", d)):
+            key = f"[emitters.{i}]"
+            e = dict(e)
+            if "type" not in e:
+                c.missing(f"{key}.type", f"expected one of {', '.join(EMITTER_TYPES)}")
+            emitters.append(_build(c, EMITTER_TYPES[c.choice(f"{key}.type", e.pop("type"), tuple(EMITTER_TYPES))],
+                                   key, e))
+        colliders = [_build(c, Collider, f"[colliders.{i}]", e) for i, e in enumerate(_table_list(c, "colliders", d))]
         scene = cls(
             domain=domain,
             materials=materials,
             shapes=built,
             solver=_build(c, SolverSettings, "[solver]", d.get("solver", {})),
             output=_build(c, Output, "[output]", d.get("output", {})),
+            effects=effects,
+            emitters=emitters,
+            colliders=colliders,
             name=d.get("name", "scene"),
             source=source,
         )
@@ -542,6 +504,9 @@ class Scene:
             "materials": {k: _plain(m, skip=("name",)) for k, m in self.materials.items()},
             "shapes": [{"type": s.type_name, **_plain(s)} for s in self.shapes],
             "output": _plain(self.output),
+            "effects": {k: _plain(e) for k, e in self.effects.items()},
+            "emitters": [{"type": e.type_name, **_plain(e)} for e in self.emitters],
+            "colliders": [_plain(e) for e in self.colliders],
         }
 
     def with_quality(self, quality: str) -> Scene:
@@ -560,6 +525,13 @@ class Scene:
         if frames is not None:
             new.output.frames = frames
         return new.validate()
+
+
+def _table_list(c: _Checker, name, d) -> list:
+    items = d.get(name, [])
+    if not isinstance(items, list):
+        c.fail(f"[{name}]", items, f"expected a list: write each as a [[{name}]] table")
+    return [c.table(f"[{name}.{i}]", e) for i, e in enumerate(items)]
 
 
 def _build(c: _Checker, cls, key, d, **given):

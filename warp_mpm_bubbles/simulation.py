@@ -19,6 +19,7 @@ only scalars (CG reductions, counters, the maximum particle speed).
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +37,10 @@ from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tension.py measures it)
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
+# The per-particle arrays every scene has (effects add theirs with Simulation.add_particle_field).
+PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vol0": float, "J": float,
+                   "phase": wp.int32, "active": wp.int32, "material": wp.int32, "gas_law": wp.int32,
+                   "gas_gamma": float}
 
 
 @dataclass
@@ -65,7 +70,9 @@ class Simulation:
 
     def __init__(self, scene, device=None):
         self.scene = scene.validate()
+        self.effects = self.scene.effect_names  # the optional stages that run; no others do
         self.device = wp.get_device(device)
+        self.launches: Counter[str] = Counter()  # kernel launches by name: proof of what ran
         self.grid = MacGrid.from_domain(scene.domain)
         self.timer = StageTimer(self.device)
         self.stats = SolverStats()
@@ -73,36 +80,71 @@ class Simulation:
         self.frame = 0
         self._init_particles()
         self._init_grid()
-        self._max_speed = float(np.linalg.norm(self.v.numpy(), axis=1).max(initial=0.0))
 
     # ----------------------------------------------------------------------------------- state
     def _init_particles(self):
         seeds = seed_particles(self.scene)
-        n = len(seeds["positions"])
-        self.num_particles = n
-        self.ids = np.arange(n, dtype=np.int64)  # stable: particles are never reordered
-        self.material = seeds["material"].astype(np.int32)
-        materials = list(self.scene.materials.values())
-        per_material = lambda f, dtype: np.array([f(m) for m in materials], dtype=dtype)[self.material]  # noqa: E731
-        phase = per_material(lambda m: PHASE_GAS if m.is_gas else PHASE_LIQUID, np.int32)
-        self.has_gas = bool((phase == PHASE_GAS).any())  # gas stages run only when the scene has gas
-        arr = lambda a, dtype: wp.array(a, dtype=dtype, device=self.device)  # noqa: E731
-        self.x = arr(seeds["positions"], wp.vec3)
-        self.v = arr(seeds["velocities"], wp.vec3)
-        self.C = wp.zeros(n, dtype=wp.mat33, device=self.device)
-        # Gas seeded at a pressure p other than ambient is compressed to J0 of its rest volume.
-        p_atm = self.scene.domain.ambient_pressure
-        gamma = per_material(lambda m: m.gamma if m.eos == "adiabatic" else 1.0, np.float64)
-        J0 = (p_atm / (p_atm + seeds["pressure"].astype(np.float64))) ** (1.0 / gamma)
-        rest_volume = seeds["volume"] / J0
-        self.vol0 = arr(rest_volume.astype(np.float32), float)
-        self.mass = arr((per_material(lambda m: m.density, np.float64) * rest_volume).astype(np.float32), float)
-        self.J = arr(J0.astype(np.float32), float)
-        self.phase = arr(phase, wp.int32)
-        self.active = arr(np.ones(n, dtype=np.int32), wp.int32)
-        self.gas_law = arr(per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32), wp.int32)
-        self.gas_gamma = arr(per_material(lambda m: m.gamma, np.float32), float)
+        self.num_particles = 0  # particles in use; the arrays hold capacity >= this many
+        self.particle_fields = dict(PARTICLE_FIELDS)
+        for name, dtype in self.particle_fields.items():
+            setattr(self, name, wp.zeros(0, dtype=dtype, device=self.device))
         self.vented_mass = wp.zeros(1, dtype=wp.float64, device=self.device)
+        self.host_state: dict[str, np.ndarray] = {}  # small per-effect state that checkpoints keep
+        self.add_particles(seeds["positions"], seeds["velocities"], seeds["material"], seeds["volume"],
+                           seeds["pressure"])
+
+    def add_particles(self, positions, velocities, material, volume, gauge_pressure=None) -> slice:
+        """Append particles (numpy arrays; material: indices into scene.materials; volume: current,
+        m^3) and return their index range. Arrays grow geometrically; ids are the indices."""
+        n = len(positions)
+        materials = list(self.scene.materials.values())
+        per_material = lambda f, dtype: np.array([f(m) for m in materials], dtype=dtype)[material]  # noqa: E731
+        # Gas at a gauge pressure p is compressed to J0 of its rest volume.
+        p_atm = self.scene.domain.ambient_pressure
+        gauge = np.zeros(n) if gauge_pressure is None else np.asarray(gauge_pressure, np.float64)
+        gamma = per_material(lambda m: m.gamma if m.eos == "adiabatic" else 1.0, np.float64)
+        J0 = (p_atm / (p_atm + gauge)) ** (1.0 / gamma)
+        rest_volume = np.asarray(volume, np.float64) / J0
+        values = {
+            "x": positions, "v": velocities, "C": np.zeros((n, 3, 3)),
+            "mass": per_material(lambda m: m.density, np.float64) * rest_volume, "vol0": rest_volume, "J": J0,
+            "phase": per_material(lambda m: PHASE_GAS if m.is_gas else PHASE_LIQUID, np.int32),
+            "active": np.ones(n, np.int32), "material": np.asarray(material, np.int32),
+            "gas_law": per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32),
+            "gas_gamma": per_material(lambda m: m.gamma, np.float32),
+        }
+        start = self.num_particles
+        self._reserve(start + n)
+        for name, dtype in self.particle_fields.items():
+            if name in values and n:
+                src = wp.array(np.asarray(values[name]), dtype=dtype, device=self.device)
+                wp.copy(getattr(self, name), src, dest_offset=start, count=n)
+        self.num_particles = start + n
+        if n:
+            self._max_speed = max(getattr(self, "_max_speed", 0.0),
+                                  float(np.linalg.norm(np.asarray(velocities), axis=1).max()))
+        return slice(start, start + n)
+
+    def add_particle_field(self, name: str, dtype):
+        """A per-particle array for an effect (zero for existing particles); grows and checkpoints with the rest."""
+        self.particle_fields[name] = dtype
+        setattr(self, name, wp.zeros(len(self.x), dtype=dtype, device=self.device))
+
+    def _reserve(self, n: int):
+        capacity = len(self.x)
+        if n <= capacity:
+            return
+        capacity = n if capacity == 0 else max(n, 2 * capacity)
+        for name, dtype in self.particle_fields.items():
+            old = getattr(self, name)
+            new = wp.zeros(capacity, dtype=dtype, device=self.device)
+            if self.num_particles:
+                wp.copy(new, old, count=self.num_particles)
+            setattr(self, name, new)
+
+    @property
+    def has_gas(self) -> bool:
+        return "gas" in self.effects
 
     def _init_grid(self):
         g, dev = self.grid, self.device
@@ -133,8 +175,22 @@ class Simulation:
         self._init_effects()
 
     def _init_effects(self):
-        """Settings and arrays of the optional stages; a stage the scene does not ask for gets none."""
+        """Settings and arrays of the optional stages; a stage the scene does not ask for gets none
+        (its module is not even imported, so its kernels are never compiled)."""
         g, dev = self.grid, self.device
+        self.foam = self.subgrid = self.entrainment = None
+        if "subgrid_bubbles" in self.effects:
+            from .subgrid import SubgridBubbleStage
+
+            self.subgrid = SubgridBubbleStage(self, self.scene.effects["subgrid_bubbles"])
+        if "entrainment" in self.effects:
+            from .subgrid import EntrainmentStage
+
+            self.entrainment = EntrainmentStage(self, self.scene.effects["entrainment"])
+        if "foam" in self.effects:
+            from .foam import FoamStage
+
+            self.foam = FoamStage(self, self.scene.effects["foam"])
         materials = list(self.scene.materials.values())
         liquids = [m for m in materials if not m.is_gas]
         self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # tension runs only if > 0
@@ -154,6 +210,7 @@ class Simulation:
         self.ceiling = wp.zeros(tuple(column) if self.has_gas else (1, 1, 1), dtype=wp.int32, device=dev)
 
     def _launch(self, kernel, dim, inputs):
+        self.launches[kernel.key] += 1
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
 
     # ------------------------------------------------------------------------------ the step
@@ -189,6 +246,8 @@ class Simulation:
             for a in g.axes:
                 self._launch(gk.momentum_to_velocity, g.face_shape(a),
                              [self.mom[a], self.face_mass[a], self._gravity[a], dt, self.vel[a]])
+            if self.subgrid:
+                self.subgrid.to_grid(self, dt)  # the bubbles' drag reaction on the liquid
             self._launch(gk.classify_cells, g.cells,
                          [self.cell_count, self.liq_volume, self.gas_volume, two_phase, 1.0 / g.dx**3,
                           wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self._wall_lo, self._wall_hi, self.types])
@@ -257,9 +316,17 @@ class Simulation:
             self.max_speed.zero_()
             self._launch(g2p_advect, self.num_particles,
                          [*self.vel, self._origin, g.dx, g.dim, dt, self._domain_hi,
-                          self.x, self.v, self.C, self.J, self.active, self.max_speed])
-            self._max_speed = float(self.max_speed.numpy()[0])
-        if self.has_gas:
+                          self.x, self.v, self.C, self.J, self.active, self.phase, self.max_speed])
+        if self.entrainment:
+            with self.timer("entrainment"):
+                self.entrainment.step(self, dt)
+        if self.subgrid:
+            with self.timer("subgrid_bubbles"):
+                self.subgrid.step(self, dt)
+        if self.foam:
+            with self.timer("foam"):  # gas reaching open air becomes foam instead of venting
+                self.foam.step(self, dt)
+        elif self.has_gas:
             with self.timer("vent"):
                 up_axis, up_sign = self._up
                 if up_axis >= 0:
@@ -269,6 +336,7 @@ class Simulation:
                 self._launch(gk.vent_exposed_gas, self.num_particles,
                              [self.x, self.phase, self.mass, self.types, self.ceiling, up_axis, up_sign,
                               self._origin, g.dx, g.dim, self.active, self.vented_mass])
+        self._max_speed = float(self.max_speed.numpy()[0])  # g2p and the effects that move particles
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 
@@ -314,26 +382,29 @@ class Simulation:
 
         Copies: on the CPU device .numpy() is a view that the next step changes.
         """
-        keep = slice(None) if include_retired else self.active.numpy() == 1
+        n = self.num_particles
+        view = {name: getattr(self, name).numpy()[:n] for name in ("x", "v", "material", "J", "mass", "vol0")}
+        keep = slice(None) if include_retired else self.active.numpy()[:n] == 1
         return {
-            "positions": self.x.numpy()[keep].copy(),
-            "velocities": self.v.numpy()[keep].copy(),
-            "ids": self.ids[keep].copy(),
-            "material": self.material[keep].copy(),
-            "J": self.J.numpy()[keep].copy(),
-            "mass": self.mass.numpy()[keep].copy(),
-            "volume": (self.vol0.numpy() * self.J.numpy())[keep],
+            "positions": view["x"][keep].copy(),
+            "velocities": view["v"][keep].copy(),
+            "ids": np.arange(n, dtype=np.int64)[keep],
+            "material": view["material"][keep].copy(),
+            "J": view["J"][keep].copy(),
+            "mass": view["mass"][keep].copy(),
+            "volume": (view["vol0"] * view["J"])[keep],
         }
 
     def gas_budget(self) -> dict[str, float]:
         """Gas mass in the liquid, vented to the atmosphere, and their sum (conserved exactly)."""
-        gas = self.phase.numpy() == PHASE_GAS
-        active = self.active.numpy() == 1
-        mass = self.mass.numpy().astype(np.float64)
+        n = self.num_particles
+        gas = self.phase.numpy()[:n] == PHASE_GAS
+        active = self.active.numpy()[:n] == 1
+        mass = self.mass.numpy()[:n].astype(np.float64)
         inside = float(mass[gas & active].sum())
         vented = float(self.vented_mass.numpy()[0])
         return {"inside": inside, "vented": vented, "total": inside + vented,
-                "volume": float((self.vol0.numpy() * self.J.numpy())[gas & active].sum())}
+                "volume": float((self.vol0.numpy()[:n] * self.J.numpy()[:n])[gas & active].sum())}
 
     def pressure_numpy(self) -> np.ndarray:
         """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""

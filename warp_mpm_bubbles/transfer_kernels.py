@@ -138,13 +138,14 @@ def p2g(
     cell_count: wp.array3d(dtype=wp.int32),
     nonfinite: wp.array(dtype=wp.int32),
 ):
-    """Momentum of every active particle; cell mass and rest volume of the liquid; particle counts.
+    """Momentum of every active grid-resolved particle; cell mass and rest volume of the liquid;
+    particle counts. Foam and sub-grid bubbles (phase > PHASE_GAS) couple through their effects.
 
     A particle with a non-finite position or velocity is skipped and counted in nonfinite[0]: the
     step then stops with a message instead of writing outside the grid.
     """
     p = wp.tid()
-    if active[p] == 0:
+    if active[p] == 0 or phase[p] > PHASE_GAS:
         return
     vp = v[p]
     if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
@@ -261,11 +262,13 @@ def g2p_advect(
     C: wp.array(dtype=wp.mat33),
     J: wp.array(dtype=float),
     active: wp.array(dtype=wp.int32),
+    phase: wp.array(dtype=wp.int32),
     max_speed: wp.array(dtype=float),
 ):
-    """Gather velocity and affine matrix, update J, move the particle and keep it in the domain."""
+    """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
+    (grid-resolved phases only: the effects move foam and sub-grid bubbles)."""
     p = wp.tid()
-    if active[p] == 0:
+    if active[p] == 0 or phase[p] > PHASE_GAS:
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx

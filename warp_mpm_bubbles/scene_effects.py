@@ -1,0 +1,232 @@
+"""The optional effects a scene may ask for, as data: [effects.*] tables, [[emitters]] and
+[[colliders]]. Each is checked like the rest of the scene (one SceneError naming key and fix).
+
+    [effects.foam]               gas reaching open air becomes foam that rides the surface
+    [effects.subgrid_bubbles]    bubbles under ~2 cells as Lagrangian particles with drag
+    [effects.entrainment]        sub-grid bubbles seeded where a splash traps air
+    [[emitters]]  type = "liquid_inflow" | "gas_injector"
+    [[colliders]] type = "sphere" | "box" | "cylinder" | "glass"
+
+A scene that names none of them runs none of their stages (Scene.effects lists what runs).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .scene_checks import AXES, _Checker, _did_you_mean, _g, dim_why
+
+BOUNDARIES = ("no_slip", "free_slip")
+COLLIDER_TYPES = ("sphere", "box", "cylinder", "glass")
+
+
+def _material(c: _Checker, key, name, scene, kinds):
+    mats = scene.materials
+    if not isinstance(name, str) or name not in mats:
+        c.fail(key, name, f"no such material; defined materials: {', '.join(mats)}{_did_you_mean(name, mats)}")
+    if mats[name].kind not in kinds:
+        c.fail(key, name, f"material '{name}' is {mats[name].kind}; expected a {' or '.join(kinds)} material")
+    return name
+
+
+def _window(c: _Checker, key, start, stop):
+    """A time window [start, stop); stop None means until the end of the run."""
+    start = c.number(f"{key}.start", start, ge=0)
+    if stop is not None:
+        stop = c.number(f"{key}.stop", stop, gt=start)
+    return start, stop
+
+
+def _inside_domain(c: _Checker, key, point, scene, what):
+    size = np.array(scene.domain.size)
+    p = np.array(point)
+    if (p < 0).any() or (p > size).any():
+        c.fail(key, list(point), f"{what} {_g(p)} is outside the domain {_g(0 * size)} .. {_g(size)}; move it "
+                                 f"inside or enlarge [domain].size")
+
+
+# ------------------------------------------------------------------------------------- effects
+@dataclass
+class Foam:
+    """Gas that reaches open air becomes foam particles riding the surface instead of leaving."""
+
+    material: str = "foam"  # a kind = "foam" material (its prototype); created with defaults if absent
+    lifetime: float = 2.0  # mean seconds before a foam particle bursts (exponential lifetimes)
+    key: ClassVar[str] = "foam"
+
+    def _validate(self, c: _Checker, t, scene):
+        self.lifetime = c.number(f"{t}.lifetime", self.lifetime, gt=0)
+        _material(c, f"{t}.material", self.material, scene, ("foam",))
+
+
+@dataclass
+class SubgridBubbles:
+    """Bubbles smaller than `radius` as Lagrangian particles with buoyancy and drag."""
+
+    radius: float | None = None  # resolved <-> sub-grid threshold, m; None: one cell (diameter 2 cells)
+    key: ClassVar[str] = "subgrid_bubbles"
+
+    def _validate(self, c: _Checker, t, scene):
+        if self.radius is None:
+            self.radius = scene.domain.cell_size
+        self.radius = c.number(f"{t}.radius", self.radius, gt=0)
+        if not any(m.is_gas for m in scene.materials.values()):
+            c.fail(t, {}, "sub-grid bubbles are gas: define a [materials.NAME] with kind = \"gas\"")
+
+
+@dataclass
+class Entrainment:
+    """Sub-grid bubbles seeded where a splash traps air (Ihmsen et al. 2012's trapped-air measure)."""
+
+    bubble_radius: float | None = None  # m; None: half the sub-grid threshold
+    rate: float = 1.0  # bubbles per cell per second at full trapped-air potential
+    min_speed: float = 1.0  # m/s: relative speeds below this trap no air
+    key: ClassVar[str] = "entrainment"
+
+    def _validate(self, c: _Checker, t, scene):
+        sub = scene.effects.get("subgrid_bubbles")
+        if sub is None:
+            c.fail(t, {}, "entrainment seeds sub-grid bubbles: add an [effects.subgrid_bubbles] table")
+        if self.bubble_radius is None:
+            self.bubble_radius = 0.5 * sub.radius
+        self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, gt=0, le=sub.radius)
+        self.rate = c.number(f"{t}.rate", self.rate, ge=0)
+        self.min_speed = c.number(f"{t}.min_speed", self.min_speed, ge=0)
+
+
+EFFECT_TYPES = {cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment)}
+
+
+# ------------------------------------------------------------------------------------ emitters
+@dataclass
+class LiquidInflow:
+    """A pouring stream: liquid enters through a disk (a segment in 2D) at a set speed."""
+
+    material: str
+    center: tuple
+    direction: tuple
+    radius: float
+    speed: float
+    start: float = 0.0
+    stop: float | None = None  # s; None: for the whole run
+    type_name: ClassVar[str] = "liquid_inflow"
+
+    def _validate(self, c: _Checker, key, scene):
+        dim = scene.dim
+        _material(c, f"{key}.material", self.material, scene, ("liquid",))
+        self.center = c.vector(f"{key}.center", self.center, dim, dim_why(dim))
+        _inside_domain(c, f"{key}.center", self.center, scene, "the nozzle centre")
+        self.direction = c.vector(f"{key}.direction", self.direction, dim, dim_why(dim))
+        norm = math.sqrt(sum(d * d for d in self.direction))
+        if norm == 0.0:
+            c.fail(f"{key}.direction", list(self.direction), "must not be zero: the direction the stream flows")
+        self.direction = tuple(d / norm for d in self.direction)
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+        self.speed = c.number(f"{key}.speed", self.speed, gt=0)
+        self.start, self.stop = _window(c, key, self.start, self.stop)
+
+    @property
+    def volume_rate(self) -> float:
+        """m^3/s (3D) or m^2/s (2D: per unit slab thickness)."""
+        return self.speed * (math.pi * self.radius**2 if len(self.center) == 3 else 2.0 * self.radius)
+
+
+@dataclass
+class GasInjector:
+    """An air stone: gas bubbles released at a set rate with a log-normal size distribution."""
+
+    material: str
+    center: tuple
+    rate: float  # bubbles per second
+    radius: float  # median bubble radius, m
+    radius_spread: float = 0.0  # standard deviation of ln(radius); 0: all the same size
+    spread: float = 0.0  # bubbles start uniformly within this distance of the centre, m
+    velocity: tuple | None = None
+    start: float = 0.0
+    stop: float | None = None
+    type_name: ClassVar[str] = "gas_injector"
+
+    def _validate(self, c: _Checker, key, scene):
+        dim = scene.dim
+        _material(c, f"{key}.material", self.material, scene, ("gas",))
+        self.center = c.vector(f"{key}.center", self.center, dim, dim_why(dim))
+        _inside_domain(c, f"{key}.center", self.center, scene, "the injector centre")
+        self.rate = c.number(f"{key}.rate", self.rate, gt=0)
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+        self.radius_spread = c.number(f"{key}.radius_spread", self.radius_spread, ge=0, le=1)
+        self.spread = c.number(f"{key}.spread", self.spread, ge=0)
+        self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
+        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
+        self.start, self.stop = _window(c, key, self.start, self.stop)
+        if self.radius < scene.domain.cell_size and "subgrid_bubbles" not in scene.effects:
+            c.fail(f"{key}.radius", self.radius,
+                   f"bubbles under one cell ({_g(scene.domain.cell_size)} m) are not resolved by the grid: add "
+                   f"[effects.subgrid_bubbles], or use a radius >= [domain].cell_size")
+
+
+EMITTER_TYPES = {cls.type_name: cls for cls in (LiquidInflow, GasInjector)}
+
+
+# ----------------------------------------------------------------------------------- colliders
+@dataclass
+class Collider:
+    """A solid analytic shape, static or moving at `velocity` during [start, stop).
+
+    sphere: center, radius. box: center, size (full extents). cylinder: center, radius, axis,
+    length. glass: an open cup standing on `center` (the bottom's centre), opening along +axis:
+    radius (outer), height, wall_thickness.
+    """
+
+    type: str
+    center: tuple
+    radius: float | None = None
+    size: tuple | None = None
+    axis: str = "y"
+    length: float | None = None
+    height: float | None = None
+    wall_thickness: float | None = None
+    velocity: tuple | None = None
+    start: float = 0.0
+    stop: float | None = None
+    boundary: str = "no_slip"
+
+    NEEDS: ClassVar[dict] = {"sphere": ("radius",), "box": ("size",), "cylinder": ("radius", "length"),
+                             "glass": ("radius", "height", "wall_thickness")}
+
+    def _validate(self, c: _Checker, key, scene):
+        dim, dx = scene.dim, scene.domain.cell_size
+        self.type = c.choice(f"{key}.type", self.type, COLLIDER_TYPES)
+        needs = self.NEEDS[self.type]
+        for name in ("radius", "size", "length", "height", "wall_thickness"):
+            given = getattr(self, name) is not None
+            if name in needs and not given:
+                c.missing(f"{key}.{name}", f"a {self.type} collider needs {', '.join(needs)}")
+            if name not in needs and given:
+                c.fail(f"{key}.{name}", getattr(self, name), f"a {self.type} collider has no {name} "
+                                                             f"(it takes {', '.join(needs)}); remove it")
+        self.center = c.vector(f"{key}.center", self.center, dim, dim_why(dim))
+        if self.size is not None:
+            self.size = c.vector(f"{key}.size", self.size, dim, dim_why(dim), gt=0)
+        for name in ("radius", "length", "height", "wall_thickness"):
+            if getattr(self, name) is not None:
+                setattr(self, name, c.number(f"{key}.{name}", getattr(self, name), gt=0))
+        self.axis = c.choice(f"{key}.axis", self.axis, AXES[:dim])
+        if self.type == "glass":
+            # The grid sees a solid wall only where a cell centre is inside it.
+            if self.wall_thickness < dx:
+                c.fail(f"{key}.wall_thickness", self.wall_thickness,
+                       f"must be >= [domain].cell_size ({_g(dx)}) for the grid to see the wall; thicken it "
+                       f"or refine the grid")
+            if self.wall_thickness >= self.radius:
+                c.fail(f"{key}.wall_thickness", self.wall_thickness, f"must be < radius = {_g(self.radius)}")
+        self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
+        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
+        self.start, self.stop = _window(c, key, self.start, self.stop)
+        self.boundary = c.choice(f"{key}.boundary", self.boundary, BOUNDARIES)
+
+    @property
+    def moves(self) -> bool:
+        return any(v != 0.0 for v in self.velocity)

@@ -78,6 +78,11 @@ class Simulation:
         self.stats = SolverStats()
         self.time = 0.0
         self.frame = 0
+        self.colliders = None
+        if "colliders" in self.effects:
+            from .colliders import ColliderStage
+
+            self.colliders = ColliderStage(self)
         self._init_particles()
         self._init_grid()
 
@@ -90,6 +95,9 @@ class Simulation:
             setattr(self, name, wp.zeros(0, dtype=dtype, device=self.device))
         self.vented_mass = wp.zeros(1, dtype=wp.float64, device=self.device)
         self.host_state: dict[str, np.ndarray] = {}  # small per-effect state that checkpoints keep
+        if self.colliders:  # no particle starts inside a solid
+            keep = ~self.colliders.inside(self, seeds["positions"])
+            seeds = {name: values[keep] for name, values in seeds.items()}
         self.add_particles(seeds["positions"], seeds["velocities"], seeds["material"], seeds["volume"],
                            seeds["pressure"])
 
@@ -178,7 +186,11 @@ class Simulation:
         """Settings and arrays of the optional stages; a stage the scene does not ask for gets none
         (its module is not even imported, so its kernels are never compiled)."""
         g, dev = self.grid, self.device
-        self.foam = self.subgrid = self.entrainment = None
+        self.foam = self.subgrid = self.entrainment = self.emitters = None
+        if "emitters" in self.effects:
+            from .emitters import EmitterStage
+
+            self.emitters = EmitterStage(self)
         if "subgrid_bubbles" in self.effects:
             from .subgrid import SubgridBubbleStage
 
@@ -240,6 +252,9 @@ class Simulation:
         g = self.grid
         settings = self.scene.solver
         two_phase = int(self.has_gas)
+        if self.emitters:
+            with self.timer("emitters"):
+                self.emitters.emit(self, self.time, dt)
         with self.timer("p2g"):
             self._particles_to_grid()
         with self.timer("grid"):
@@ -251,6 +266,8 @@ class Simulation:
             self._launch(gk.classify_cells, g.cells,
                          [self.cell_count, self.liq_volume, self.gas_volume, two_phase, 1.0 / g.dx**3,
                           wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self._wall_lo, self._wall_hi, self.types])
+            if self.colliders:  # (timed with the grid stage; push-out has its own line)
+                self.colliders.mark_cells(self, self.time)
             if self.has_gas:
                 self._launch(gk.classify_phases, g.cells,
                              [self.types, self.gas_count, self.liq_volume, self.gas_volume, self._interface,
@@ -260,6 +277,8 @@ class Simulation:
                 self._launch(gk.face_inverse_density, g.face_shape(a),
                              [self.types, self.phase_cells, self.liq_mass, self.liq_volume, self.gas_mass,
                               self.gas_volume, two_phase, self._interface, a, 1.0 / g.dx**3, self.inv_rho[a]])
+            if self.colliders:
+                self.colliders.set_face_velocities(self, self.time)
         if self.nu_max > 0.0:
             with self.timer("viscosity"):
                 for a in g.axes:
@@ -312,6 +331,8 @@ class Simulation:
                     self.vel[a], self.vel_tmp[a] = self.vel_tmp[a], self.vel[a]
                     self.valid[a], self.valid_tmp[a] = self.valid_tmp[a], self.valid[a]
                 self._launch(gk.enforce_walls, g.face_shape(a), [self.types, a, self.vel[a]])
+            if self.colliders:
+                self.colliders.set_face_velocities(self, self.time)
         with self.timer("g2p"):
             self.max_speed.zero_()
             self._launch(g2p_advect, self.num_particles,
@@ -336,6 +357,9 @@ class Simulation:
                 self._launch(gk.vent_exposed_gas, self.num_particles,
                              [self.x, self.phase, self.mass, self.types, self.ceiling, up_axis, up_sign,
                               self._origin, g.dx, g.dim, self.active, self.vented_mass])
+        if self.colliders:
+            with self.timer("colliders"):
+                self.colliders.push_out(self, self.time + dt)
         self._max_speed = float(self.max_speed.numpy()[0])  # g2p and the effects that move particles
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
@@ -346,7 +370,10 @@ class Simulation:
         the capillary and viscous limits when those stages are on; max_dt."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self._gravity))
-        speed = self._max_speed + math.sqrt(g_mag * self.grid.dx)
+        # Emitted streams and moving colliders bring their speed before any particle has it.
+        speed = max([self._max_speed] + [e.speed for e in self.scene.emitters if hasattr(e, "speed")]
+                    + [float(np.linalg.norm(c.velocity)) for c in self.scene.colliders])
+        speed += math.sqrt(g_mag * self.grid.dx)
         dt = s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf
         if self.sigma > 0.0:
             # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).

@@ -21,6 +21,7 @@ wp.set_module_options({"enable_backward": False})
 SPHERE, BOX, CYLINDER, GLASS = 0, 1, 2, 3
 KINDS = {"sphere": SPHERE, "box": BOX, "cylinder": CYLINDER, "glass": GLASS}
 FAR = 1.0e6  # metres: "unbounded" for the axes a 2D scene does not have
+GRID_MARGIN = wp.constant(0.01)  # cells: how much the grid's view of a collider is grown
 
 
 @wp.struct
@@ -89,13 +90,13 @@ def signed_distance(s: Shape, x: wp.vec3, t: float, dim: int):
 
 
 @wp.func
-def nearest_collider(shapes: wp.array(dtype=Shape), x: wp.vec3, t: float, dim: int):
-    """(index, distance) of the shape x is deepest inside, or (-1, +) if it is in none."""
+def nearest_collider(shapes: wp.array(dtype=Shape), x: wp.vec3, t: float, dim: int, margin: float):
+    """(index, distance) of the shape x is deepest inside (grown by margin), or (-1, +) if none."""
     best = int(-1)
     dist = float(FAR)
     for c in range(shapes.shape[0]):
         d = signed_distance(shapes[c], x, t, dim)
-        if d < 0.0 and d < dist:
+        if d < margin and d < dist:
             best = c
             dist = d
     return wp.vec2(float(best), dist)
@@ -111,10 +112,15 @@ def mark_collider_cells(
     types: wp.array3d(dtype=wp.int32),
     collider_of_cell: wp.array3d(dtype=wp.int32),
 ):
-    """A cell whose centre is inside a collider is solid (no-slip or free-slip as the collider says)."""
+    """A cell whose centre is inside a collider is solid (no-slip or free-slip as the collider says).
+
+    The shapes are grown by GRID_MARGIN cells here, so a wall one cell thick covers at least one
+    cell centre however it lies on the grid (a wall exactly between two centres would otherwise
+    cover none).
+    """
     i, j, k = wp.tid()
     x = origin + dx * wp.vec3(float(i) + 0.5, float(j) + 0.5, float(k) + 0.5)
-    hit = nearest_collider(shapes, x, t, dim)
+    hit = nearest_collider(shapes, x, t, dim, GRID_MARGIN * dx)
     c = int(hit[0])
     collider_of_cell[i, j, k] = c
     if c >= 0:
@@ -163,7 +169,7 @@ def push_out_of_colliders(
         return
     xp = x[p]
     for _ in range(2):  # a second pass for a particle pushed from one collider into another
-        hit = nearest_collider(shapes, xp, t, dim)
+        hit = nearest_collider(shapes, xp, t, dim, 0.0)
         c = int(hit[0])
         if c >= 0:
             s = shapes[c]
@@ -188,7 +194,7 @@ def push_out_of_colliders(
 def inside_any_collider(shapes: wp.array(dtype=Shape), x: wp.array(dtype=wp.vec3), t: float, dim: int,
                         inside: wp.array(dtype=wp.int32)):
     p = wp.tid()
-    inside[p] = wp.where(nearest_collider(shapes, x[p], t, dim)[0] >= 0.0, 1, 0)
+    inside[p] = wp.where(nearest_collider(shapes, x[p], t, dim, 0.0)[0] >= 0.0, 1, 0)
 
 
 def _shape(collider, dim: int) -> Shape:

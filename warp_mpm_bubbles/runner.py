@@ -118,5 +118,6 @@ def summary(result: RunResult) -> str:
         b = sim.gas_budget()
         lines.append(f"  gas: {100 * b['vented'] / b['total']:.1f}% of its mass vented to the atmosphere, "
                      f"{b['volume'] * 1e6:.3g} cm^3 left in the liquid")
+    lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

@@ -1,0 +1,72 @@
+"""The effects model (issue #4): a scene runs the stages of the effects it asks for and no others.
+
+The proof is the kernel launch counter (`Simulation.launches`, every launch goes through it) and
+the stage timer's list of stages that ran, which the run summary prints.
+"""
+
+import io
+
+import warp as wp
+
+from scenes import tank_2d
+from warp_mpm_bubbles import Material, Sphere
+from warp_mpm_bubbles.scene_effects import Collider, LiquidInflow
+from warp_mpm_bubbles.simulation import Simulation
+
+wp.config.quiet = True
+
+# What every liquid scene launches: the transfers, the grid stages, the pressure system.
+CORE_KERNELS = {"p2g", "momentum_to_velocity", "classify_cells", "zero_solid_faces", "face_inverse_density",
+                "pressure_diagonal_and_rhs", "subtract_pressure_gradient", "extrapolate_velocity",
+                "enforce_walls", "g2p_advect"}
+CORE_STAGES = ["p2g", "grid", "pressure", "extend", "g2p"]
+
+
+def run_steps(scene, n=3):
+    sim = Simulation(scene, "cpu")
+    for _ in range(n):
+        sim.step(sim.stable_dt())
+    return sim
+
+
+def test_liquid_only_scene_launches_only_core_kernels(tmp_path):
+    sim = run_steps(tank_2d(cells=16, out=tmp_path / "t.usdc"))
+    assert sim.effects == []
+    assert set(sim.launches) == CORE_KERNELS  # no gas, tension, viscosity, collider, foam or bubble kernel
+    assert sim.timer.stages_run == CORE_STAGES
+
+
+def test_each_effect_adds_only_its_own_stages(tmp_path):
+    base = tank_2d(cells=16, out=tmp_path / "t.usdc")
+    scene = tank_2d(cells=16, out=tmp_path / "t.usdc")
+    scene.materials["water"] = Material("water", surface_tension=0.072)
+    scene.colliders = [Collider("sphere", center=(0.5, 0.25), radius=0.1)]
+    scene.emitters = [LiquidInflow("water", center=(0.5, 0.9), direction=(0.0, -1.0), radius=0.05, speed=1.0)]
+    sim = run_steps(scene)
+    assert sim.effects == ["colliders", "surface_tension", "emitters"]
+    extra = set(sim.launches) - set(run_steps(base).launches)
+    assert extra == {"inside_any_collider", "mark_collider_cells", "push_out_of_colliders",  # static: no faces
+                     "liquid_level_set", "smooth_level_set", "surface_curvature", "apply_surface_tension"}
+    assert sim.timer.stages_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]
+
+
+def test_gas_is_an_effect_of_the_materials_used(tmp_path):
+    scene = tank_2d(cells=16, out=tmp_path / "t.usdc")
+    scene.materials["air"] = Material("air", kind="gas")  # defined but unused: no gas stage
+    assert scene.validate().effect_names == []
+    scene.shapes.append(Sphere("air", center=(0.5, 0.2), radius=0.1))
+    assert scene.validate().effect_names == ["gas"]
+    sim = run_steps(scene, 1)
+    assert {"p2g_gas", "classify_phases", "vent_exposed_gas"} <= set(sim.launches)
+
+
+def test_summary_lists_the_stages_that_ran(tmp_path):
+    from warp_mpm_bubbles.runner import run_scene
+
+    scene = tank_2d(cells=16, out=tmp_path / "t.usdc").replace_output(frames=1)
+    scene.colliders = [Collider("box", center=(0.5, 0.2), size=(0.2, 0.1))]
+    log = io.StringIO()
+    run_scene(scene.validate(), device="cpu", log=log)
+    text = log.getvalue()
+    assert "stages run: output, p2g, grid, pressure, extend, g2p, colliders" in text  # frame 0 is written first
+    assert "effects: colliders" in text

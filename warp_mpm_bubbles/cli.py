@@ -103,7 +103,11 @@ def _check(path) -> int:
     print(f"{path}: OK")
     print(f"  {d.dim}D domain {' x '.join(f'{s:g}' for s in d.size)} m, cells {d.cells[:d.dim]}, dx {d.cell_size:g} m")
     print(f"  materials: {', '.join(f'{m.name} ({m.kind}, {m.density:g} kg/m^3)' for m in scene.materials.values())}")
-    print(f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles")
+    print(f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles (before colliders carve them)"
+          if scene.colliders else f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles")
+    print(f"  effects: {', '.join(scene.effect_names) or 'none (liquid only)'}"
+          + (f"; {len(scene.emitters)} emitters" if scene.emitters else "")
+          + (f"; {len(scene.colliders)} colliders" if scene.colliders else ""))
     print(f"  output: {scene.output.path}, {scene.output.frames} frames at {scene.output.fps:g} fps ({scene.output.format})")
     return 0
 

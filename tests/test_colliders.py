@@ -33,10 +33,10 @@ def inside_glass(x, base, radius, height, wall):
 
 
 def test_no_particle_ends_inside_a_falling_ball_or_a_glass(tmp_path):
-    # The ball (r = 0.06) moves down at 1 m/s for 0.3 s, into the pool and on to 0.15 m.
+    # The ball (r = 0.06) is dropped from rest: it falls 0.3 m in 0.247 s, into the pool, and stays.
     glass = dict(base=(0.12, 0.0), radius=0.1, height=0.4, wall=0.02)
     scene = pool(tmp_path, [
-        Collider("sphere", center=(0.4, 0.45), radius=0.06, velocity=(0.0, -1.0), stop=0.3),
+        Collider("sphere", center=(0.4, 0.45), radius=0.06, acceleration=(0.0, -G), stop=0.247),
         Collider("glass", center=glass["base"], radius=glass["radius"], height=glass["height"],
                  wall_thickness=glass["wall"]),
     ])
@@ -46,13 +46,13 @@ def test_no_particle_ends_inside_a_falling_ball_or_a_glass(tmp_path):
     for _ in range(12):
         sim.advance_frame()
         x = sim.particles_numpy()["positions"]
-        centre = np.array([0.4, 0.45 - min(sim.time, 0.3)])
+        centre = np.array([0.4, 0.45 - 0.5 * G * min(sim.time, 0.247) ** 2])
         assert np.linalg.norm(x[:, :2] - centre, axis=1).min() >= 0.06 - 1e-6
         assert not inside_glass(x, **glass).any()
     p = sim.particles_numpy()
     assert np.isfinite(p["velocities"]).all()
-    # Energy bound: the ball's speed plus free fall over the tank height.
-    assert np.linalg.norm(p["velocities"], axis=1).max() < 1.0 + math.sqrt(2 * G * 0.6)
+    # Energy bound: the ball's top speed (2.4 m/s) plus free fall over the tank height.
+    assert np.linalg.norm(p["velocities"], axis=1).max() < G * 0.247 + math.sqrt(2 * G * 0.6)
     assert len(x) == len(x0)
 
 
@@ -95,6 +95,7 @@ def test_water_in_a_glass_stays_in_the_glass(tmp_path):
     (dict(velocity=(1.0,)), ["[colliders.0].velocity", "2D"]),
     (dict(boundary="sticky"), ["[colliders.0].boundary", "'no_slip'"]),
     (dict(stop=-1.0), ["[colliders.0].stop", "> 0"]),
+    (dict(acceleration=(0.0, -9.81)), ["[colliders.0].stop", "speeds up forever"]),
 ])
 def test_bad_colliders_are_refused_by_name(tmp_path, change, words):
     args = dict(type="sphere", center=(0.3, 0.3), radius=0.05)

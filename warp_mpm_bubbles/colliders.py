@@ -34,7 +34,8 @@ class Shape:
     height: float  # glass
     thickness: float  # glass wall and bottom
     axis: int  # cylinder and glass (the glass opens towards +axis)
-    velocity: wp.vec3
+    velocity: wp.vec3  # at the start time
+    acceleration: wp.vec3
     start: float
     stop: float
     no_slip: int
@@ -42,13 +43,14 @@ class Shape:
 
 @wp.func
 def shape_center(s: Shape, t: float):
-    return s.center + s.velocity * (wp.clamp(t, s.start, s.stop) - s.start)
+    tau = wp.clamp(t, s.start, s.stop) - s.start
+    return s.center + s.velocity * tau + 0.5 * tau * tau * s.acceleration
 
 
 @wp.func
 def shape_velocity(s: Shape, t: float):
     if t >= s.start and t < s.stop:
-        return s.velocity
+        return s.velocity + (t - s.start) * s.acceleration
     return wp.vec3(0.0)
 
 
@@ -210,6 +212,7 @@ def _shape(collider, dim: int) -> Shape:
     s.thickness = float(collider.wall_thickness or 0.0)
     s.axis = "xyz".index(collider.axis)
     s.velocity = wp.vec3(*pad(collider.velocity, 0.0))
+    s.acceleration = wp.vec3(*pad(collider.acceleration, 0.0))
     s.start = float(collider.start)
     s.stop = float(collider.stop) if collider.stop is not None else 1.0e30
     s.no_slip = int(collider.boundary == "no_slip")

@@ -372,7 +372,7 @@ class Simulation:
         g_mag = math.sqrt(sum(a * a for a in self._gravity))
         # Emitted streams and moving colliders bring their speed before any particle has it.
         speed = max([self._max_speed] + [e.speed for e in self.scene.emitters if hasattr(e, "speed")]
-                    + [float(np.linalg.norm(c.velocity)) for c in self.scene.colliders])
+                    + [c.max_speed for c in self.scene.colliders])
         speed += math.sqrt(g_mag * self.grid.dx)
         dt = s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf
         if self.sigma > 0.0:

@@ -9,7 +9,10 @@ import sys
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
+from .grid import PHASE_GAS
 from .simulation import Simulation, SimulationError
 from .usd_output import StageWriter
 
@@ -91,7 +94,10 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint):
     """The frame first (durable when write_frame returns), then the checkpoint that resumes after it."""
     with sim.timer("output"):
         p = sim.particles_numpy()
-        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"])
+        radii = None  # without foam or sub-grid bubbles every particle has the output radius
+        if sim.foam or sim.subgrid:  # those are real bubbles: the radius of their own volume
+            radii = np.where(p["phase"] > PHASE_GAS, np.cbrt(0.75 / np.pi * p["volume"]), writer.radius)
+        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
         save_checkpoint(sim, checkpoint)
 
 
@@ -116,8 +122,11 @@ def summary(result: RunResult) -> str:
                  + (f", {st.cg_unconverged} solves hit the iteration cap" if st.cg_unconverged else ""))
     if sim.has_gas:
         b = sim.gas_budget()
-        lines.append(f"  gas: {100 * b['vented'] / b['total']:.1f}% of its mass vented to the atmosphere, "
-                     f"{b['volume'] * 1e6:.3g} cm^3 left in the liquid")
+        share = lambda key: 100 * b[key] / b["total"] if b["total"] > 0 else 0.0  # noqa: E731
+        held = "".join(f", {share(key):.1f}% {what}" for key, what, on in (
+            ("foam", "in foam", sim.foam), ("subgrid", "in sub-grid bubbles", sim.subgrid)) if on)
+        lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
+                     f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

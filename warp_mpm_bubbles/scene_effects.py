@@ -55,10 +55,12 @@ class Foam:
 
     material: str = "foam"  # a kind = "foam" material (its prototype); created with defaults if absent
     lifetime: float = 2.0  # mean seconds before a foam particle bursts (exponential lifetimes)
+    rise_speed: float = 0.25  # m/s: foam pushed under the surface floats back up at most this fast
     key: ClassVar[str] = "foam"
 
     def _validate(self, c: _Checker, t, scene):
         self.lifetime = c.number(f"{t}.lifetime", self.lifetime, gt=0)
+        self.rise_speed = c.number(f"{t}.rise_speed", self.rise_speed, ge=0)
         _material(c, f"{t}.material", self.material, scene, ("foam",))
 
 
@@ -67,12 +69,17 @@ class SubgridBubbles:
     """Bubbles smaller than `radius` as Lagrangian particles with buoyancy and drag."""
 
     radius: float | None = None  # resolved <-> sub-grid threshold, m; None: one cell (diameter 2 cells)
+    convert_every: int = 10  # steps between the (host-side) checks that convert bubbles both ways
+    shrink_ratio: float = 0.5  # resolved gas clusters under this share of the threshold volume turn sub-grid
     key: ClassVar[str] = "subgrid_bubbles"
 
     def _validate(self, c: _Checker, t, scene):
         if self.radius is None:
             self.radius = scene.domain.cell_size
         self.radius = c.number(f"{t}.radius", self.radius, gt=0)
+        self.convert_every = c.number(f"{t}.convert_every", self.convert_every, ge=1, whole=True)
+        # Below 1 so a bubble just converted one way is not converted straight back (hysteresis).
+        self.shrink_ratio = c.number(f"{t}.shrink_ratio", self.shrink_ratio, gt=0, lt=1)
         if not any(m.is_gas for m in scene.materials.values()):
             c.fail(t, {}, "sub-grid bubbles are gas: define a [materials.NAME] with kind = \"gas\"")
 
@@ -82,8 +89,12 @@ class Entrainment:
     """Sub-grid bubbles seeded where a splash traps air (Ihmsen et al. 2012's trapped-air measure)."""
 
     bubble_radius: float | None = None  # m; None: half the sub-grid threshold
-    rate: float = 1.0  # bubbles per cell per second at full trapped-air potential
-    min_speed: float = 1.0  # m/s: relative speeds below this trap no air
+    # The potential is the mean approach speed of a cell and its neighbours, so on a grid it is a
+    # velocity difference across about one cell: a ball plunging at 1.5 m/s into 5 mm cells gives
+    # 0.25..0.5 m/s over its splash and 1.2 m/s at most (examples/plunge.toml).
+    rate: float = 20.0  # bubbles per cell per second at full trapped-air potential
+    min_speed: float = 0.25  # m/s: relative speeds below this trap no air
+    max_speed: float | None = None  # m/s: the potential saturates here; None: 4 min_speed (Ihmsen's 5..20)
     key: ClassVar[str] = "entrainment"
 
     def _validate(self, c: _Checker, t, scene):
@@ -95,6 +106,9 @@ class Entrainment:
         self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, gt=0, le=sub.radius)
         self.rate = c.number(f"{t}.rate", self.rate, ge=0)
         self.min_speed = c.number(f"{t}.min_speed", self.min_speed, ge=0)
+        if self.max_speed is None:
+            self.max_speed = 4.0 * self.min_speed if self.min_speed > 0 else 1.0
+        self.max_speed = c.number(f"{t}.max_speed", self.max_speed, gt=self.min_speed)
 
 
 EFFECT_TYPES = {cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment)}

@@ -27,7 +27,7 @@ import warp as wp
 
 from . import grid_kernels as gk
 from . import tension_kernels as tk
-from .grid import PHASE_GAS, PHASE_LIQUID, MacGrid
+from .grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .scene import INTERFACES
 from .seeding import seed_particles
@@ -410,7 +410,7 @@ class Simulation:
         Copies: on the CPU device .numpy() is a view that the next step changes.
         """
         n = self.num_particles
-        view = {name: getattr(self, name).numpy()[:n] for name in ("x", "v", "material", "J", "mass", "vol0")}
+        view = {name: getattr(self, name).numpy()[:n] for name in ("x", "v", "material", "J", "mass", "vol0", "phase")}
         keep = slice(None) if include_retired else self.active.numpy()[:n] == 1
         return {
             "positions": view["x"][keep].copy(),
@@ -420,18 +420,24 @@ class Simulation:
             "J": view["J"][keep].copy(),
             "mass": view["mass"][keep].copy(),
             "volume": (view["vol0"] * view["J"])[keep],
+            "phase": view["phase"][keep].copy(),  # grid.PHASE_*: foam and sub-grid bubbles have their own radius
         }
 
     def gas_budget(self) -> dict[str, float]:
-        """Gas mass in the liquid, vented to the atmosphere, and their sum (conserved exactly)."""
+        """Gas mass (kg) in the liquid as resolved gas ("inside") and as sub-grid bubbles, in foam,
+        vented to the atmosphere (burst foam included), the float32 rounding of bubble conversions
+        (subgrid.py), and their sum (conserved exactly). "volume": the resolved gas's volume."""
         n = self.num_particles
-        gas = self.phase.numpy()[:n] == PHASE_GAS
+        phase = self.phase.numpy()[:n]
         active = self.active.numpy()[:n] == 1
         mass = self.mass.numpy()[:n].astype(np.float64)
-        inside = float(mass[gas & active].sum())
+        held = {key: float(mass[(phase == code) & active].sum())
+                for key, code in (("inside", PHASE_GAS), ("subgrid", PHASE_SUBGRID), ("foam", PHASE_FOAM))}
         vented = float(self.vented_mass.numpy()[0])
-        return {"inside": inside, "vented": vented, "total": inside + vented,
-                "volume": float((self.vol0.numpy()[:n] * self.J.numpy()[:n])[gas & active].sum())}
+        rounding = float(self.host_state.get("gas_mass_rounding", np.zeros(1))[0])
+        return {**held, "vented": vented, "rounding": rounding,
+                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + rounding,
+                "volume": float((self.vol0.numpy()[:n] * self.J.numpy()[:n])[(phase == PHASE_GAS) & active].sum())}
 
     def pressure_numpy(self) -> np.ndarray:
         """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""

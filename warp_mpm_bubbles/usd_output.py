@@ -165,7 +165,8 @@ class StageWriter:
         return paths
 
     def write_frame(self, frame: int, positions: np.ndarray, velocities: np.ndarray,
-                    ids: np.ndarray, material: np.ndarray) -> None:
+                    ids: np.ndarray, material: np.ndarray, radii: np.ndarray | None = None) -> None:
+        """radii (N,), metres: per-particle sizes (foam, sub-grid bubbles); None: particle_radius for all."""
         t0 = time.perf_counter()
         if self._closed:
             raise ValueError("write_frame after close()")
@@ -175,10 +176,13 @@ class StageWriter:
         if self._last is not None and frame <= self._last:
             raise ValueError(f"frame {frame} must be greater than the last frame {self._last}")
         pos, vel, ids, mat = self._validate(frame, positions, velocities, ids, material)
-
         n = len(pos)
-        if n:
+        rad = self._radii(frame, radii, n)
+
+        if n and radii is None:
             lo, hi = pos.min(axis=0) - self.radius, pos.max(axis=0) + self.radius
+        elif n:
+            lo, hi = (pos - rad[:, None]).min(axis=0), (pos + rad[:, None]).max(axis=0)
         else:
             lo = hi = np.zeros(3, np.float32)
         extent = Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
@@ -192,9 +196,9 @@ class StageWriter:
             (POINTS, "extent"): extent, (POINTS, "primvars:materialIndex"): v_mat,
         }
         if INSTANCER in self._prims:
-            values[INSTANCER, "scales"] = Vt.Vec3fArray.FromNumpy(np.full((n, 3), self.radius, np.float32))
+            values[INSTANCER, "scales"] = Vt.Vec3fArray.FromNumpy(np.repeat(rad[:, None], 3, axis=1))
         if POINTS in self._prims:
-            values[POINTS, "widths"] = Vt.FloatArray.FromNumpy(np.full(n, 2 * self.radius, np.float32))
+            values[POINTS, "widths"] = Vt.FloatArray.FromNumpy(2 * rad)
             values[POINTS, "primvars:displayColor"] = Vt.Vec3fArray.FromNumpy(self._colors[mat])
 
         layer = Sdf.Layer.CreateAnonymous(self._ext)
@@ -242,6 +246,16 @@ class StageWriter:
         if n and (mat.min() < 0 or mat.max() >= self._n_mat):
             raise ValueError(f"frame {frame}: material index outside [0, {self._n_mat})")
         return pos, vel, ids, mat
+
+    def _radii(self, frame, radii, n) -> np.ndarray:
+        if radii is None:
+            return np.full(n, self.radius, np.float32)
+        rad = np.ascontiguousarray(radii, dtype=np.float32)
+        if rad.shape != (n,):
+            raise ValueError(f"frame {frame}: radii has shape {rad.shape}, expected {(n,)}")
+        if not (np.isfinite(rad).all() and (rad > 0).all()):
+            raise ValueError(f"frame {frame}: radii must be finite and > 0")
+        return rad
 
     def close(self) -> None:
         # Nothing to flush: every frame was made durable in write_frame.

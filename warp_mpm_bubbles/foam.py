@@ -1,0 +1,211 @@
+"""Foam at the free surface (issue #4, item 2): gas that reaches open air becomes foam instead of
+venting, rides the surface for an exponentially distributed lifetime, then bursts.
+
+Foam particles are the gas particles themselves, relabelled in place (phase PHASE_FOAM, the foam
+material as their prototype): ids stay, so a renderer's motion blur follows a bubble from the water
+into the foam, and the gas mass moves between the ledgers of `Simulation.gas_budget` without being
+copied or rounded. The core transfers skip foam; this stage moves it (diffuse-particle rules after
+Ihmsen et al. 2012, with the interpolated liquid fraction phi deciding the regime):
+
+    phi >= AIRBORNE_PHI  on or in the liquid: the interpolated grid velocity (it rides the waves)
+                         plus a drift toward the surface phi = SURFACE_PHI, up to `rise_speed`
+                         (buoyant when submerged, settling when above)
+    phi < AIRBORNE_PHI   no liquid within the stencil: ballistic under gravity
+
+One-way coupled: foam is 1/20 of the water's density and a thin layer, so its weight and drag on
+the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically). A
+scene with foam therefore simulates its liquid and gas bit for bit as the same scene without it.
+
+Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle index): one draw
+per particle, the same on every run and device, independent of launch order.
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from . import grid_kernels as gk
+from .grid import EMPTY, PHASE_FOAM, PHASE_GAS
+from .transfer_kernels import (
+    CELL_OFFSET, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, gather_component, grid_coord, make_stencil,
+)
+
+wp.set_module_options({"enable_backward": False})
+
+SURFACE_PHI = wp.constant(0.5)  # the surface is where the liquid fraction crosses 1/2
+AIRBORNE_PHI = wp.constant(0.05)  # below this the B-spline stencil holds (almost) no liquid
+
+
+@wp.func
+def exposed_to_open_air(
+    types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    c: wp.vec3i,
+    up_axis: int,
+    up_sign: int,
+    dim: int,
+):
+    """The vent test of grid_kernels.vent_exposed_gas: an empty cell at or beside c, and c above the
+    highest liquid cell of its column (so holes inside the water do not count)."""
+    exposed = gk.cell_type_at(types, c) == EMPTY
+    for a in range(dim):
+        for s in range(2):
+            if gk.cell_type_at(types, c + (2 * s - 1) * gk.unit(a)) == EMPTY:
+                exposed = True
+    if exposed and up_axis >= 0:
+        col = gk.column_of(c, up_axis)
+        exposed = gk.height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+    return exposed
+
+
+@wp.func
+def liquid_fraction(
+    liq_volume: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), X: wp.vec3, dim: int,
+    inv_cell_vol: float,
+):
+    """B-spline interpolated liquid rest-volume fraction at grid coordinate X (cell-centred), over
+    the cells that are not solid: a wall holds no liquid, but it is not air either (counted, it
+    would sink the foam beside a wall by most of a cell)."""
+    s = make_stencil(X, dim)
+    phi = float(0.0)
+    weight = float(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(s.nk):
+                n = s.base + wp.vec3i(i, j, k)
+                if not gk.is_solid(types[n[0], n[1], n[2]]):
+                    w = s.wx[i] * s.wy[j] * s.wz[k]
+                    phi += w * liq_volume[n[0], n[1], n[2]]
+                    weight += w
+    if weight > 0.0:
+        phi = phi / weight
+    return phi * inv_cell_vol
+
+
+@wp.kernel
+def advance_foam(
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    types: wp.array3d(dtype=wp.int32),
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    dt: float,
+    domain_hi: wp.vec3,
+    gravity: wp.vec3,
+    up: wp.vec3,
+    rise_speed: float,
+    phase: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=float),
+    life: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    active: wp.array(dtype=wp.int32),
+    vented_mass: wp.array(dtype=wp.float64),
+):
+    """Age every foam particle by dt; burst the expired ones (their gas joins the atmosphere's
+    ledger); move the others by the regime of the liquid fraction around them."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_FOAM:
+        return
+    remaining = life[p] - dt
+    life[p] = remaining
+    if remaining <= 0.0:
+        active[p] = 0
+        wp.atomic_add(vented_mass, 0, wp.float64(mass[p]))
+        return
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
+    inv_dx = 1.0 / dx
+    phi = liquid_fraction(liq_volume, types, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, inv_dx * inv_dx * inv_dx)
+    vp = v[p]
+    if phi < AIRBORNE_PHI:
+        vp = vp + dt * gravity  # spray: nothing to ride on
+    else:
+        gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
+        gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
+        gw = wp.vec4(0.0)
+        if dim == 3:
+            gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
+        # Relative to the liquid, foam settles where phi = 1/2: submerged it floats up (buoyant),
+        # above the surface it sinks back (heavier than air), the faster the farther away.
+        lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
+        vp = wp.vec3(gu[0], gv[0], gw[0]) + lift * up
+    moved = xp + dt * vp
+    xn = clamp_to_domain(moved, domain_hi, dx, dim)
+    for a in range(dim):  # a wall stops the motion into it, as in g2p
+        if moved[a] < xn[a]:
+            vp[a] = wp.max(vp[a], 0.0)
+        if moved[a] > xn[a]:
+            vp[a] = wp.min(vp[a], 0.0)
+    x[p] = xn
+    v[p] = vp
+
+
+@wp.kernel
+def gas_to_foam(
+    types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    up_axis: int,
+    up_sign: int,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    foam_material: int,
+    mean_life: float,
+    seed: int,
+    x: wp.array(dtype=wp.vec3),
+    active: wp.array(dtype=wp.int32),
+    phase: wp.array(dtype=wp.int32),
+    material: wp.array(dtype=wp.int32),
+    life: wp.array(dtype=float),
+):
+    """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    q = (x[p] - origin) / dx
+    c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+    if not exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
+        return
+    phase[p] = PHASE_FOAM
+    material[p] = foam_material
+    state = wp.rand_init(seed, p)  # a hash of (seed, index): no generator state to carry or checkpoint
+    life[p] = -mean_life * wp.log(1.0 - wp.randf(state))  # exponential; randf is in [0, 1)
+
+
+class FoamStage:
+    """[effects.foam]: `step` runs after g2p in place of the vent stage."""
+
+    def __init__(self, sim, settings):
+        self.settings = settings
+        self.material = list(sim.scene.materials).index(settings.material)
+        sim.add_particle_field("foam_life", float)  # seconds left; checkpointed with the particles
+        g = sim._gravity
+        g_mag = math.sqrt(sum(a * a for a in g))
+        self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
+        self._seed = int(sim.scene.solver.seed) & 0x7FFFFFFF
+
+    def step(self, sim, dt: float):
+        if not sim.has_gas:
+            return  # no gas, nothing ever becomes foam
+        g = sim.grid
+        self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
+        up_axis, up_sign = sim._up
+        if up_axis >= 0:
+            sim.ceiling.fill_(-1)
+            sim._launch(gk.liquid_ceiling, g.cells, [sim.types, sim.phase_cells, up_axis, up_sign, sim.ceiling])
+        sim._launch(gas_to_foam, sim.num_particles,
+                    [sim.types, sim.ceiling, up_axis, up_sign, sim._origin, g.dx, g.dim, self.material,
+                     self.settings.lifetime, self._seed, sim.x, sim.active, sim.phase, sim.material,
+                     sim.foam_life])
+
+    def advance(self, sim, dt: float):
+        g = sim.grid
+        sim._launch(advance_foam, sim.num_particles,
+                    [*sim.vel, sim.liq_volume, sim.types, sim._origin, g.dx, g.dim, dt, sim._domain_hi,
+                     wp.vec3(*sim._gravity), self._up, self.settings.rise_speed, sim.phase, sim.mass,
+                     sim.foam_life, sim.x, sim.v, sim.active, sim.vented_mass])

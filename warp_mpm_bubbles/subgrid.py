@@ -1,0 +1,634 @@
+"""Sub-grid bubbles and entrainment (issue #4, item 3).
+
+Sub-grid bubbles are gas particles of phase PHASE_SUBGRID: the core transfers skip them, and this
+stage moves them by buoyancy and drag relative to the liquid's interpolated velocity:
+
+    (rho_g + C_m rho_l) V dv/dt = (rho_l - rho_g) V (-g) + k(|w|) (u_l - v),   w = v - u_l
+    k(s) = 1/2 rho_l C_D(Re) pi r^2 s,  C_D = 24/Re (1 + 0.15 Re^0.687) for Re < 1000, else 0.44
+
+(Schiller & Naumann 1933, a rigid sphere: small bubbles in tap water behave like one because
+surfactants immobilise their surface; C_m = 1/2, the added mass of a sphere; mu is the liquid's
+viscosity, 1e-3 Pa s when the scene gives none; r from the bubble's volume V = V0 J, with J from
+the cell's pressure by the particle's gas law, so bubbles expand as they rise.) The drag is fully
+implicit: w_new solves w (m + dt k(|w|)) = m (v - u_l) + dt F_b, a scalar root along the right-hand
+side (the left side grows monotonically with |w|), found by bisection: stable at any dt, and at rest
+it is exactly the terminal balance F_b = k(U) U. Two-way: the momentum dt k w that the drag took
+from the bubble goes to the liquid's face velocities in the next step's grid stage, right after
+u* = p/m + dt g (momentum-exact, lagged by one step; its size is bounded by the buoyancy).
+
+A bubble whose cell is gas (or open air above the water) joins the resolved gas in place; the vent
+or foam stage then takes it if it is in open air.
+
+Conversions, on the host every `convert_every` steps (CI scenes convert a few times a frame):
+- gather: per cell, the sub-grid volume of its 3^dim neighbourhood; neighbourhoods holding at least
+  the threshold volume (4/3 pi radius^3), largest first, turn their bubbles into resolved gas
+  particles filling the same volume (a ball, or in 2D a disk through the one-cell slab) at
+  their centroid; the liquid particles there are pushed out by the volume-preserving radial map
+  r' = (r^d + R^d)^(1/d) (within 4 R), so the new gas does not sit on top of water.
+- shrink: resolved gas particles are grouped into clusters of cells connected through faces,
+  edges or corners (26-/8-connectivity); a cluster under shrink_ratio x the threshold volume
+  becomes one sub-grid bubble at its centroid (the hysteresis keeps a bubble from flipping back).
+  The small void it leaves is refilled by the solver (holes are fluid, see classify_cells).
+Mass is conserved exactly: the merged masses are summed in float64, and the float32 rounding of
+the new particles' masses (below 2^-24 of the converted mass) is booked in
+host_state["gas_mass_rounding"], which Simulation.gas_budget adds to its total.
+
+Entrainment (Ihmsen et al. 2012, trapped-air potential, on grid cells): for a liquid cell with air
+in its 3^dim neighbourhood, I = sum_n W_n |u_cn| (1 - u^_cn . x^_cn) / sum_n W_n over its fluid
+neighbours n (u_cn = u_c - u_n, x_cn = x_c - x_n, W = 1 - |x_cn|/2dx): the relative speed of
+converging streams, doubled head-on, zero for flow that translates or separates. Clamped as
+Phi = (min(I, max) - min(I, min)) / (max - min) with min_speed, max_speed; a cell seeds
+rate * Phi * dt bubbles per step (the fraction by a hash of (seed, step, cell)).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from . import grid_kernels as gk
+from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
+from .transfer_kernels import (
+    GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, gather_component, grid_coord,
+    make_stencil,
+)
+
+wp.set_module_options({"enable_backward": False})
+
+WATER_VISCOSITY = 1.0e-3  # Pa s, when the liquid sets none (its inviscid grid still drags bubbles)
+ADDED_MASS = wp.constant(0.5)  # added-mass coefficient of a sphere
+RE_NEWTON = wp.constant(1000.0)  # Schiller-Naumann's upper end, where C_D levels off at 0.44
+CD_NEWTON = wp.constant(0.44)
+BISECTION_STEPS = wp.constant(40)  # float32 interval [0, b/m] halves to its last bit in ~25
+PI = wp.constant(math.pi)
+PUSH_REACH = 4.0  # gather: liquid within this many bubble radii makes room (displacement ~(R/r)^d)
+
+
+@wp.func
+def drag_per_speed(s: float, r: float, rho_l: float, mu: float):
+    """k(s) with |drag| = k(s) s at relative speed s; C_D s stays finite as s -> 0 (Stokes)."""
+    re = rho_l * s * 2.0 * r / mu
+    cd_s = CD_NEWTON * s
+    if re < RE_NEWTON:
+        cd_s = 24.0 * mu / (rho_l * 2.0 * r) * (1.0 + 0.15 * wp.pow(re, 0.687))
+    return 0.5 * rho_l * cd_s * PI * r * r
+
+
+@wp.func
+def implicit_relative_speed(b: float, m: float, dt: float, r: float, rho_l: float, mu: float):
+    """s >= 0 with s (m + dt k(s)) = b; s (m + dt k(s)) increases with s, so bisect on [0, b/m]."""
+    lo = float(0.0)
+    hi = b / m
+    for _ in range(BISECTION_STEPS):
+        mid = 0.5 * (lo + hi)
+        if mid * (m + dt * drag_per_speed(mid, r, rho_l, mu)) > b:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+@wp.func
+def volume_ratio(law: int, gamma: float, p_gauge: float, p_atm: float):
+    """J = V/V0 of gas at rest volume V0 at p_atm, now at p_atm + p_gauge (tension floored)."""
+    p_abs = wp.max(p_atm + p_gauge, 0.1 * p_atm)
+    if law == GAS_ISOTHERMAL:
+        return p_atm / p_abs
+    if law == GAS_ADIABATIC:
+        return wp.pow(p_atm / p_abs, 1.0 / gamma)
+    return 1.0
+
+
+@wp.func
+def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
+    q = (x - origin) / dx
+    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+
+
+@wp.func
+def add_face_impulse(
+    vel: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), X: wp.vec3, dim: int, impulse: float
+):
+    """Spread one impulse component over the faces the B-spline touches: node i gains w_i J / m_i."""
+    s = make_stencil(X, dim)
+    for i in range(3):
+        for j in range(3):
+            for k in range(s.nk):
+                n = s.base + wp.vec3i(i, j, k)
+                m = mass[n[0], n[1], n[2]]
+                if m > 0.0:
+                    wp.atomic_add(vel, n[0], n[1], n[2], s.wx[i] * s.wy[j] * s.wz[k] * impulse / m)
+
+
+@wp.kernel
+def deposit_drag_reaction(
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    impulse: wp.array(dtype=wp.vec3),
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    domain_hi: wp.vec3,
+    mass_u: wp.array3d(dtype=float),
+    mass_v: wp.array3d(dtype=float),
+    mass_w: wp.array3d(dtype=float),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+):
+    """The liquid gets the momentum that the drag took from each bubble in its last update."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_SUBGRID:
+        return
+    J = impulse[p]
+    if wp.length_sq(J) == 0.0:
+        return
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
+    inv_dx = 1.0 / dx
+    add_face_impulse(vel_u, mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, J[0])
+    add_face_impulse(vel_v, mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, J[1])
+    if dim == 3:
+        add_face_impulse(vel_w, mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, J[2])
+
+
+@wp.kernel
+def advance_subgrid(
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    types: wp.array3d(dtype=wp.int32),
+    phase_cells: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    pressure: wp.array3d(dtype=float),
+    up_axis: int,
+    up_sign: int,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    dt: float,
+    domain_hi: wp.vec3,
+    gravity: wp.vec3,
+    rho_l: float,
+    mu: float,
+    p_atm: float,
+    mass: wp.array(dtype=float),
+    vol0: wp.array(dtype=float),
+    gas_law: wp.array(dtype=wp.int32),
+    gas_gamma: wp.array(dtype=float),
+    phase: wp.array(dtype=wp.int32),
+    J: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    impulse: wp.array(dtype=wp.vec3),
+    active: wp.array(dtype=wp.int32),
+    max_speed: wp.array(dtype=float),
+):
+    """Buoyancy and implicit drag for every sub-grid bubble in the liquid; the others join the
+    resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those)."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_SUBGRID:
+        return
+    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
+    c = cell_of(xp, origin, dx)
+    t = types[c[0], c[1], c[2]]
+    leaves = t == FLUID and phase_cells[c[0], c[1], c[2]] == PHASE_GAS
+    if t == EMPTY:
+        leaves = True  # no gravity: any empty cell is air
+        if up_axis >= 0:  # an empty hole inside the water is still water around the bubble
+            col = gk.column_of(c, up_axis)
+            leaves = gk.height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+    if leaves:
+        phase[p] = PHASE_GAS
+        impulse[p] = wp.vec3(0.0)
+        return
+    p_gauge = float(0.0)
+    if t == FLUID:
+        p_gauge = pressure[c[0], c[1], c[2]]
+    Jp = volume_ratio(gas_law[p], gas_gamma[p], p_gauge, p_atm)
+    J[p] = Jp
+    vol = vol0[p] * Jp
+    r = wp.pow(0.75 * vol / PI, 1.0 / 3.0)
+    rho_g = mass[p] / vol
+    m_eff = (rho_g + ADDED_MASS * rho_l) * vol
+    inv_dx = 1.0 / dx
+    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
+    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
+    gw = wp.vec4(0.0)
+    if dim == 3:
+        gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
+    u_l = wp.vec3(gu[0], gv[0], gw[0])
+    b = m_eff * (v[p] - u_l) - dt * (rho_l - rho_g) * vol * gravity
+    b_len = wp.length(b)
+    w = wp.vec3(0.0)
+    k = float(0.0)
+    if b_len > 0.0:
+        s = implicit_relative_speed(b_len, m_eff, dt, r, rho_l, mu)
+        w = b * (s / b_len)
+        k = drag_per_speed(s, r, rho_l, mu)
+    vp = u_l + w
+    impulse[p] = dt * k * w  # what the drag took from the bubble goes to the liquid next step
+    moved = xp + dt * vp
+    xn = clamp_to_domain(moved, domain_hi, dx, dim)
+    for a in range(dim):
+        if moved[a] < xn[a]:
+            vp[a] = wp.max(vp[a], 0.0)
+        if moved[a] > xn[a]:
+            vp[a] = wp.min(vp[a], 0.0)
+    x[p] = xn
+    v[p] = vp
+    wp.atomic_max(max_speed, 0, wp.length(vp))
+
+
+@wp.func
+def cell_velocity(
+    vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
+    c: wp.vec3i, dim: int,
+):
+    u = wp.vec3(0.5 * (vel_u[c[0], c[1], c[2]] + vel_u[c[0] + 1, c[1], c[2]]),
+                0.5 * (vel_v[c[0], c[1], c[2]] + vel_v[c[0], c[1] + 1, c[2]]), 0.0)
+    if dim == 3:
+        u[2] = 0.5 * (vel_w[c[0], c[1], c[2]] + vel_w[c[0], c[1], c[2] + 1])
+    return u
+
+
+@wp.kernel
+def trapped_air(
+    types: wp.array3d(dtype=wp.int32),
+    phase_cells: wp.array3d(dtype=wp.int32),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    dt: float,
+    min_speed: float,
+    max_speed: float,
+    rate: float,
+    seed: int,
+    capacity: int,
+    count: wp.array(dtype=wp.int32),
+    spawn_key: wp.array(dtype=wp.int64),
+    spawn_x: wp.array(dtype=wp.vec3),
+    spawn_v: wp.array(dtype=wp.vec3),
+):
+    """Ihmsen et al.'s trapped-air potential per liquid cell near air; appends the bubbles it seeds."""
+    i, j, k = wp.tid()
+    c = wp.vec3i(i, j, k)
+    if types[i, j, k] != FLUID or phase_cells[i, j, k] != PHASE_LIQUID:
+        return
+    u_c = cell_velocity(vel_u, vel_v, vel_w, c, dim)
+    near_air = int(0)
+    potential = float(0.0)
+    weights = float(0.0)
+    nk = int(1)
+    if dim == 3:
+        nk = 3
+    for a in range(3):
+        for b in range(3):
+            for e in range(nk):
+                off = wp.vec3i(a - 1, b - 1, 0)
+                if dim == 3:
+                    off = wp.vec3i(a - 1, b - 1, e - 1)
+                if off[0] == 0 and off[1] == 0 and off[2] == 0:
+                    continue
+                t = gk.cell_type_at(types, c + off)
+                if t == EMPTY:
+                    near_air = 1  # there is air to trap
+                if t != FLUID:
+                    continue
+                d = wp.vec3(float(off[0]), float(off[1]), float(off[2]))
+                dist = wp.length(d)
+                weight = 1.0 - 0.5 * dist  # W = 1 - |x_cn| / 2dx
+                u_rel = u_c - cell_velocity(vel_u, vel_v, vel_w, c + off, dim)
+                speed = wp.length(u_rel)
+                if speed > 0.0:
+                    # x_cn = x_c - x_n = -d: approaching streams give 1 - cos > 1, up to 2 head-on
+                    potential += weight * speed * (1.0 + wp.dot(u_rel, d) / (speed * dist))
+                weights += weight
+    if near_air == 0 or weights == 0.0:
+        return
+    trapped = potential / weights
+    phi = (wp.min(trapped, max_speed) - wp.min(trapped, min_speed)) / (max_speed - min_speed)
+    expected = rate * phi * dt
+    if expected <= 0.0:
+        return
+    cell = (i * types.shape[1] + j) * types.shape[2] + k
+    state = wp.rand_init(seed, cell)
+    n = int(wp.floor(expected))
+    if wp.randf(state) < expected - float(n):
+        n += 1
+    if n == 0:
+        return
+    start = wp.atomic_add(count, 0, n)
+    for q in range(n):
+        slot = start + q
+        if slot < capacity:
+            jitter = wp.vec3(wp.randf(state), wp.randf(state), 0.5)
+            if dim == 3:
+                jitter[2] = wp.randf(state)
+            spawn_key[slot] = wp.int64(cell) * wp.int64(1024) + wp.int64(q)  # host sorts: launch order free
+            spawn_x[slot] = origin + (wp.vec3(float(i), float(j), float(k)) + jitter) * dx
+            spawn_v[slot] = u_c
+
+
+# ------------------------------------------------------------------------------------- host side
+def bubble_radius(volume):
+    """Radius of the sphere of this volume (the physical bubble, in 2D runs too)."""
+    return np.cbrt(0.75 * np.asarray(volume, np.float64) / math.pi)
+
+
+def add_bubbles(sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
+    """Append sub-grid bubbles (numpy: positions (n, 3) or (n, dim), radii (n,) current, m;
+    velocities like positions) of the gas material `material_index`; returns their index range.
+    gauge_pressure (n,) compresses them as in Simulation.add_particles (default: at ambient)."""
+    radii = np.asarray(radii, np.float64)
+    n = len(radii)
+    pos, vel = _as_vec3(sim, positions, n), _as_vec3(sim, velocities, n, fill=0.0)
+    material = np.full(n, int(material_index), np.int32)
+    sl = sim.add_particles(pos, vel, material, 4.0 / 3.0 * math.pi * radii**3, gauge_pressure)
+    if n:
+        sim.phase[sl].fill_(PHASE_SUBGRID)
+        sim.subgrid_impulse[sl].zero_()
+    return sl
+
+
+def _as_vec3(sim, a, n, fill=None):
+    a = np.asarray(a, np.float32).reshape(n, -1)
+    if a.shape[1] == 3:
+        return a
+    out = np.full((n, 3), 0.5 * sim.grid.dx if fill is None else fill, np.float32)  # 2D: mid-slab
+    out[:, : a.shape[1]] = a
+    return out
+
+
+def _neighbourhood_sum(field: np.ndarray, dim: int) -> np.ndarray:
+    """Sum over each cell's 3^dim block (zero outside the array)."""
+    padded = np.pad(field, [(1, 1)] * dim + [(0, 0)] * (field.ndim - dim))
+    out = np.zeros_like(field)
+    for off in np.ndindex(*(3,) * dim):
+        out += padded[tuple(slice(o, o + n) for o, n in zip(off, field.shape[:dim]))]
+    return out
+
+
+def _cluster_labels(cells: np.ndarray, dim: int) -> np.ndarray:
+    """Labels of the connected groups (faces, edges and corners touching) of the cells in `cells`
+    (m, dim) integer array, one row per occupied cell; labels are the smallest row of the group."""
+    m = len(cells)
+    label = np.arange(m)
+    if m < 2:
+        return label
+    span = cells.max(axis=0) + 3  # room for a neighbour on either side
+    key = np.ravel_multi_index((cells + 1).T, span)  # +1: a neighbour of row 0 stays >= 0
+    order = np.argsort(key)
+    ii, jj = [], []
+    for off in np.ndindex(*(3,) * dim):
+        off = np.array(off) - 1
+        if tuple(off) <= (0,) * dim:  # each pair once
+            continue
+        nb = np.ravel_multi_index((cells + 1 + off).T, span)
+        pos = np.searchsorted(key, nb, sorter=order).clip(0, m - 1)
+        hit = key[order[pos]] == nb
+        ii.append(np.flatnonzero(hit))
+        jj.append(order[pos[hit]])
+    ii, jj = np.concatenate(ii), np.concatenate(jj)
+    while True:  # min-label propagation with pointer jumping
+        new = label.copy()
+        np.minimum.at(new, ii, label[jj])
+        np.minimum.at(new, jj, label[ii])
+        new = new[new]
+        if np.array_equal(new, label):
+            return label
+        label = new
+
+
+def _ball_lattice(n: int, spacing: float, dim: int) -> np.ndarray:
+    """The n points of a cubic lattice (spacing, centred on the origin) nearest the origin: a ball
+    (disk in 2D) of n particle volumes. Stable sort: the same points every time."""
+    reach = int(math.ceil(n ** (1.0 / dim))) + 1  # a cube of side 2 reach holds a ball of n points
+    axes = [np.arange(-reach, reach + 1)] * dim
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim).astype(np.float64)
+    order = np.argsort((pts**2).sum(axis=1), kind="stable")
+    return pts[order[:n]] * spacing
+
+
+class SubgridBubbleStage:
+    """[effects.subgrid_bubbles]: `to_grid` in the grid stage, `step` after g2p."""
+
+    def __init__(self, sim, settings):
+        self.settings = settings
+        materials = list(sim.scene.materials.values())
+        liquids = [m for m in materials if m.kind == "liquid"]
+        liquid = max(liquids, key=lambda m: m.density) if liquids else None
+        self.rho_l = liquid.density if liquid else 1000.0
+        self.mu = liquid.viscosity if liquid is not None and liquid.viscosity > 0.0 else WATER_VISCOSITY
+        self.gas_material = next(i for i, m in enumerate(materials) if m.is_gas)  # for entrained bubbles
+        self.threshold_volume = 4.0 / 3.0 * math.pi * settings.radius**3
+        sim.add_particle_field("subgrid_impulse", wp.vec3)
+        sim.host_state.setdefault("gas_mass_rounding", np.zeros(1))  # kg, see the module docstring
+        self.conversions = {"gathered": 0, "shrunk": 0}  # events since start (not checkpointed)
+
+    def add_bubbles(self, sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
+        return add_bubbles(sim, positions, radii, velocities, material_index, gauge_pressure)
+
+    def to_grid(self, sim, dt: float):
+        g = sim.grid
+        sim._launch(deposit_drag_reaction, sim.num_particles,
+                    [sim.x, sim.phase, sim.active, sim.subgrid_impulse, sim._origin, g.dx, g.dim, sim._domain_hi,
+                     *sim.face_mass, *sim.vel])
+
+    def step(self, sim, dt: float):
+        g = sim.grid
+        up_axis, up_sign = sim._up
+        if up_axis >= 0:
+            sim.ceiling.fill_(-1)
+            sim._launch(gk.liquid_ceiling, g.cells, [sim.types, sim.phase_cells, up_axis, up_sign, sim.ceiling])
+        sim._launch(advance_subgrid, sim.num_particles,
+                    [*sim.vel, sim.types, sim.phase_cells, sim.ceiling, sim.pressure, up_axis, up_sign, sim._origin,
+                     g.dx, g.dim, dt, sim._domain_hi, wp.vec3(*sim._gravity), self.rho_l, self.mu,
+                     sim.scene.domain.ambient_pressure, sim.mass, sim.vol0, sim.gas_law, sim.gas_gamma, sim.phase,
+                     sim.J, sim.x, sim.v, sim.subgrid_impulse, sim.active, sim.max_speed])
+        if (sim.stats.steps + 1) % self.settings.convert_every == 0:
+            self.convert(sim)
+
+    # ------------------------------------------------------------------ conversions (host)
+    def convert(self, sim):
+        """Both conversions from one snapshot: gathered sub-grid bubbles become resolved gas,
+        small resolved clusters become sub-grid bubbles (see the module docstring)."""
+        n = sim.num_particles
+        if n == 0:
+            return
+        phase, active = sim.phase.numpy()[:n].copy(), sim.active.numpy()[:n].copy()
+        sub = np.flatnonzero((phase == PHASE_SUBGRID) & (active == 1))
+        gas = np.flatnonzero((phase == PHASE_GAS) & (active == 1))
+        if len(sub) == 0 and len(gas) == 0:
+            return
+        snap = {name: getattr(sim, name).numpy()[:n].copy() for name in ("x", "v", "mass", "vol0", "J", "material")}
+        groups_up = self._gathered(sim, snap, sub)
+        groups_down = self._small_clusters(sim, snap, gas)
+        if not groups_up and not groups_down:
+            return
+        retired = np.concatenate(groups_up + groups_down)
+        active[retired] = 0
+        sim.active[:n].assign(active)
+        for members in groups_up:
+            self._to_resolved(sim, snap, phase, members)
+        for members in groups_down:
+            self._to_subgrid(sim, snap, members)
+        self.conversions["gathered"] += len(groups_up)
+        self.conversions["shrunk"] += len(groups_down)
+
+    def _cells(self, sim, x):
+        g = sim.grid
+        c = np.floor((x - np.asarray(g.origin)) / g.dx).astype(np.int64)
+        return np.clip(c, 0, np.array(g.cells) - 1)[:, : g.dim]
+
+    def _gathered(self, sim, snap, sub) -> list[np.ndarray]:
+        """Groups of sub-grid bubbles (one material each) whose 3^dim cell block holds >= the threshold."""
+        if len(sub) == 0:
+            return []
+        g = sim.grid
+        groups = []
+        volume = snap["vol0"][sub].astype(np.float64) * snap["J"][sub]
+        cells = self._cells(sim, snap["x"][sub])
+        for mat in np.unique(snap["material"][sub]):
+            mine = snap["material"][sub] == mat
+            field = np.zeros(g.cells[: g.dim])
+            np.add.at(field, tuple(cells[mine].T), volume[mine])
+            block = _neighbourhood_sum(field, g.dim)
+            centres = np.argwhere(block >= self.threshold_volume)
+            if len(centres) == 0:
+                continue
+            # Largest first; ties by cell index (argwhere order): deterministic.
+            centres = centres[np.argsort(-block[tuple(centres.T)], kind="stable")]
+            free = mine.copy()
+            for c in centres:
+                members = free & np.all(np.abs(cells - c) <= 1, axis=1)
+                if volume[members].sum() >= self.threshold_volume:
+                    groups.append(sub[members])
+                    free &= ~members
+        return groups
+
+    def _small_clusters(self, sim, snap, gas) -> list[np.ndarray]:
+        """Connected groups of resolved-gas cells holding less than shrink_ratio x the threshold.
+
+        A group with a particle outside this step's fluid cells is in the air (a bubble that just
+        surfaced, which the vent or foam stage takes later in this step): it is left alone.
+        """
+        if len(gas) == 0:
+            return []
+        cells = self._cells(sim, snap["x"][gas])
+        occupied, row = np.unique(cells, axis=0, return_inverse=True)
+        row = row.reshape(-1)
+        label = _cluster_labels(occupied, sim.grid.dim)[row]
+        volume = snap["vol0"][gas].astype(np.float64) * snap["J"][gas]
+        per_label = np.bincount(label, weights=volume)
+        types = sim.types.numpy()[(*cells.T,) + ((0,) if sim.grid.dim == 2 else ())]
+        in_air = np.bincount(label, weights=(types != FLUID).astype(np.float64), minlength=len(per_label)) > 0
+        small = np.flatnonzero((per_label > 0) & ~in_air
+                               & (per_label < self.settings.shrink_ratio * self.threshold_volume))
+        return [gas[label == lab] for lab in small]
+
+    def _book_rounding(self, sim, exact: float, stored: np.ndarray):
+        sim.host_state["gas_mass_rounding"] = sim.host_state["gas_mass_rounding"] + (
+            exact - stored.astype(np.float64).sum())
+
+    def _to_resolved(self, sim, snap, phase, members):
+        """Fill the merged volume with gas particles at the seeding spacing; the liquid makes room."""
+        g = sim.grid
+        mass = snap["mass"][members].astype(np.float64)
+        rest = snap["vol0"][members].astype(np.float64)
+        volume = rest * snap["J"][members]
+        total_mass, total_rest, total_volume = mass.sum(), rest.sum(), volume.sum()
+        centre = (snap["x"][members] * volume[:, None]).sum(axis=0) / total_volume
+        velocity = (snap["v"][members] * mass[:, None]).sum(axis=0) / total_mass
+        ppc = sim.scene.solver.particles_per_cell
+        count = max(1, int(round(total_volume / (g.dx**3 / ppc))))
+        pts = np.tile(centre, (count, 1))
+        pts[:, : g.dim] += _ball_lattice(count, g.dx / ppc ** (1.0 / g.dim), g.dim)
+        pts = np.clip(pts, 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
+        material = np.full(count, snap["material"][members[0]], np.int32)
+        sl = sim.add_particles(pts.astype(np.float32), np.tile(velocity, (count, 1)).astype(np.float32), material,
+                               np.full(count, total_volume / count))
+        each = np.full(count, total_mass / count, np.float32)
+        sim.mass[sl].assign(each)
+        sim.vol0[sl].assign(np.full(count, total_rest / count, np.float32))
+        sim.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
+        self._book_rounding(sim, total_mass, each)
+        # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
+        radius = (bubble_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
+        liquid = np.flatnonzero((phase == PHASE_LIQUID) & (sim.active.numpy()[: len(phase)] == 1))
+        x = snap["x"][liquid].astype(np.float64)
+        d = x[:, : g.dim] - centre[: g.dim]
+        r = np.linalg.norm(d, axis=1)
+        near = (r < PUSH_REACH * radius) & (r > 0.0)
+        if near.any():
+            scale = (r[near] ** g.dim + radius**g.dim) ** (1.0 / g.dim) / r[near]
+            x[near, : g.dim] = centre[: g.dim] + d[near] * scale[:, None]
+            x = np.clip(x, 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
+            moved = liquid[near]
+            xs = sim.x.numpy()[: len(phase)].copy()
+            xs[moved] = x[near]
+            sim.x[: len(phase)].assign(xs)
+
+    def _to_subgrid(self, sim, snap, members):
+        mass = snap["mass"][members].astype(np.float64)
+        rest = snap["vol0"][members].astype(np.float64)
+        volume = rest * snap["J"][members]
+        total_mass, total_rest, total_volume = mass.sum(), rest.sum(), volume.sum()
+        centre = (snap["x"][members] * volume[:, None]).sum(axis=0) / total_volume
+        velocity = (snap["v"][members] * mass[:, None]).sum(axis=0) / total_mass
+        sl = add_bubbles(sim, centre[None], bubble_radius([total_volume]), velocity[None],
+                         int(snap["material"][members[0]]))
+        stored = np.array([total_mass], np.float32)
+        sim.mass[sl].assign(stored)
+        sim.vol0[sl].assign(np.array([total_rest], np.float32))
+        sim.J[sl].assign(np.array([total_volume / total_rest], np.float32))
+        self._book_rounding(sim, total_mass, stored)
+
+
+class EntrainmentStage:
+    """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them."""
+
+    def __init__(self, sim, settings):
+        self.settings = settings
+        self._capacity = 0
+        self._buffers = None
+        self.seeded = 0  # bubbles seeded since start (not checkpointed)
+
+    def _allocate(self, sim, capacity):
+        dev = sim.device
+        self._capacity = capacity
+        self._count = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._key = wp.zeros(capacity, dtype=wp.int64, device=dev)
+        self._x = wp.zeros(capacity, dtype=wp.vec3, device=dev)
+        self._v = wp.zeros(capacity, dtype=wp.vec3, device=dev)
+
+    def step(self, sim, dt: float):
+        s, g = self.settings, sim.grid
+        if s.rate == 0.0:
+            return
+        if self._capacity == 0:
+            self._allocate(sim, 256)
+        # One seed per step (scene seed, step index); the kernel hashes the cell index in.
+        seed = (int(sim.scene.solver.seed) * 1_000_003 + (sim.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
+        for _ in range(2):  # a second launch only if the buffer was too small
+            self._count.zero_()
+            sim._launch(trapped_air, g.cells,
+                        [sim.types, sim.phase_cells, *sim.vel, sim._origin, g.dx, g.dim, dt, s.min_speed,
+                         s.max_speed, s.rate, seed, self._capacity, self._count, self._key, self._x, self._v])
+            count = int(self._count.numpy()[0])
+            if count <= self._capacity:
+                break
+            self._allocate(sim, 2 * count)
+        if count == 0:
+            return
+        order = np.argsort(self._key.numpy()[:count], kind="stable")
+        positions = self._x.numpy()[:count][order]
+        velocities = self._v.numpy()[:count][order]
+        sim.subgrid.add_bubbles(sim, positions, np.full(count, s.bubble_radius), velocities,
+                                sim.subgrid.gas_material)
+        self.seeded += count

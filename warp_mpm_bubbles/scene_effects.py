@@ -187,7 +187,8 @@ EMITTER_TYPES = {cls.type_name: cls for cls in (LiquidInflow, GasInjector)}
 # ----------------------------------------------------------------------------------- colliders
 @dataclass
 class Collider:
-    """A solid analytic shape, static or moving at `velocity` during [start, stop).
+    """A solid analytic shape, static or moving during [start, stop) with `velocity` and
+    `acceleration` (a dropped ball: acceleration = gravity), at rest where it got to after `stop`.
 
     sphere: center, radius. box: center, size (full extents). cylinder: center, radius, axis,
     length. glass: an open cup standing on `center` (the bottom's centre), opening along +axis:
@@ -203,6 +204,7 @@ class Collider:
     height: float | None = None
     wall_thickness: float | None = None
     velocity: tuple | None = None
+    acceleration: tuple | None = None
     start: float = 0.0
     stop: float | None = None
     boundary: str = "no_slip"
@@ -238,9 +240,20 @@ class Collider:
                 c.fail(f"{key}.wall_thickness", self.wall_thickness, f"must be < radius = {_g(self.radius)}")
         self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
         self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
+        self.acceleration = (0.0,) * dim if self.acceleration is None else self.acceleration
+        self.acceleration = c.vector(f"{key}.acceleration", self.acceleration, dim, dim_why(dim))
         self.start, self.stop = _window(c, key, self.start, self.stop)
+        if self.stop is None and any(a != 0.0 for a in self.acceleration):
+            c.fail(f"{key}.stop", None, "an accelerating collider needs a stop time (s), or it speeds up forever")
         self.boundary = c.choice(f"{key}.boundary", self.boundary, BOUNDARIES)
 
     @property
     def moves(self) -> bool:
-        return any(v != 0.0 for v in self.velocity)
+        return any(v != 0.0 for v in self.velocity + self.acceleration)
+
+    @property
+    def max_speed(self) -> float:
+        """The fastest it moves (at the start or at the stop time: the speed is linear in time)."""
+        v0, a = np.array(self.velocity), np.array(self.acceleration)
+        duration = 0.0 if self.stop is None else self.stop - self.start
+        return float(max(np.linalg.norm(v0), np.linalg.norm(v0 + a * duration)))

@@ -244,6 +244,7 @@ BAD = [
      ["[domain].walls.x_min", "'noslip'", "did you mean 'no_slip'"]),
     ("unknown wall key", setk("domain", "walls", value={"top": "open"}), ["[domain].walls.top", "'open'", "x_min"]),
     ("z wall in 2D", setk("domain", "walls", value={"z_min": "open"}), ["[domain].walls.z_min", "'open'", "3D"]),
+    ("huge domain", setk("domain", "size", value=[6e16, 1.0]), ["[domain].size", "cells", "at most"]),
     ("unknown material kind", setk("materials", "water", "kind", value="soap"),
      ["[materials.water].kind", "'soap'", "'liquid'", "'gas'", "'foam'"]),
     ("foam placed by a shape", setk("materials", "water", "kind", value="foam"),

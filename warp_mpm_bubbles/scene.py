@@ -37,6 +37,7 @@ KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
 PRECONDITIONERS = ("multigrid", "jacobi", "none")
 OUTPUT_FORMATS = ("instancer", "points", "both")
 UP_AXES = ("Y", "Z")
+MAX_CELLS = 2**30  # 1024^3: beyond it the grid outgrows a GPU's memory and int32 launch indices
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
 
 
@@ -85,6 +86,11 @@ class Domain:
                 c.fail(f"{t}.size", self.size,
                        f"{AXES[a]} = {_g(s)} gives only {round(n)} cells of cell_size {_g(h)}; at least 4 "
                        f"are needed: enlarge [domain].size or reduce [domain].cell_size")
+        total = math.prod(round(s / h) for s in self.size)
+        if total > MAX_CELLS:
+            c.fail(f"{t}.size", self.size, f"gives {total:.3g} cells of cell_size {_g(h)}; at most {MAX_CELLS:.3g} "
+                                           f"fit in memory and in Warp's 32-bit indices: shrink [domain].size or "
+                                           f"enlarge [domain].cell_size")
         if self.gravity is None:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
         self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, dim_why(dim))

@@ -1,0 +1,43 @@
+"""Smoke test of benchmarks/accuracy_vs_time.py: --quick on its cheapest case (the 2D Laplace drop)."""
+
+import csv
+import importlib.util
+import math
+import pathlib
+import sys
+
+SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "accuracy_vs_time.py"
+EXPECTED_COLUMNS = [
+    "case", "metric", "setting", "value", "is_default", "run_id", "quality", "resolution", "resolution_unit", "dx",
+    "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed", "particles", "cells", "steps",
+    "cg_iterations_mean", "wall_s", "cpu_s", "measured", "reference", "error", "error_signed", "error_kind", "note",
+]
+
+
+def _load_harness():
+    spec = importlib.util.spec_from_file_location("accuracy_vs_time", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the file executes
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):
+    harness = _load_harness()
+    assert harness.main(["--quick", "--cases", "laplace", "--out-dir", str(tmp_path), "--no-plot"]) == 0
+    with open(tmp_path / "accuracy_vs_time.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames == EXPECTED_COLUMNS
+        rows = list(reader)
+    assert rows and {r["case"] for r in rows} == {"laplace"}
+    # every sweep of the quick plan is there, with the default run marked in each
+    assert {r["setting"] for r in rows} == {"resolution", "particles_per_cell", "cg_tolerance", "quality", "seed"}
+    assert sum(int(r["is_default"]) for r in rows) >= 5
+    for r in rows:
+        assert math.isfinite(float(r["error"])) and float(r["error"]) >= 0.0, r
+        assert float(r["wall_s"]) > 0.0 and int(r["steps"]) > 0, r
+    # the quick resolution levels (4 and 6 cells per radius) bound the Laplace jump within 15%
+    assert max(float(r["error"]) for r in rows if r["setting"] == "resolution") < 0.15
+    text = (tmp_path / "accuracy_vs_time.md").read_text()
+    assert "Convergence with resolution" in text and "cpu" in text
+    assert "| laplace: pressure_jump | preview |" in (tmp_path / "presets.md").read_text()

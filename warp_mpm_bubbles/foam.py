@@ -27,7 +27,7 @@ import math
 import warp as wp
 
 from . import grid_kernels as gk
-from .grid import EMPTY, PHASE_FOAM, PHASE_GAS
+from .grid import PHASE_FOAM, PHASE_GAS
 from .transfer_kernels import (
     CELL_OFFSET, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, gather_component, grid_coord, make_stencil,
 )
@@ -36,28 +36,6 @@ wp.set_module_options({"enable_backward": False})
 
 SURFACE_PHI = wp.constant(0.5)  # the surface is where the liquid fraction crosses 1/2
 AIRBORNE_PHI = wp.constant(0.05)  # below this the B-spline stencil holds (almost) no liquid
-
-
-@wp.func
-def exposed_to_open_air(
-    types: wp.array3d(dtype=wp.int32),
-    ceiling: wp.array3d(dtype=wp.int32),
-    c: wp.vec3i,
-    up_axis: int,
-    up_sign: int,
-    dim: int,
-):
-    """The vent test of grid_kernels.vent_exposed_gas: an empty cell at or beside c, and c above the
-    highest liquid cell of its column (so holes inside the water do not count)."""
-    exposed = gk.cell_type_at(types, c) == EMPTY
-    for a in range(dim):
-        for s in range(2):
-            if gk.cell_type_at(types, c + (2 * s - 1) * gk.unit(a)) == EMPTY:
-                exposed = True
-    if exposed and up_axis >= 0:
-        col = gk.column_of(c, up_axis)
-        exposed = gk.height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
-    return exposed
 
 
 @wp.func
@@ -169,7 +147,7 @@ def gas_to_foam(
         return
     q = (x[p] - origin) / dx
     c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
-    if not exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
+    if not gk.exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material

@@ -484,6 +484,30 @@ def liquid_ceiling(
     wp.atomic_max(ceiling, col[0], col[1], col[2], height_along(c, up_axis, up_sign, types.shape[up_axis]))
 
 
+@wp.func
+def exposed_to_open_air(
+    types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    c: wp.vec3i,
+    up_axis: int,
+    up_sign: int,
+    dim: int,
+):
+    """Open air at cell c: an empty cell at or beside it, and c above the highest liquid cell of
+    its column. Without the second condition a particle-free hole that stretching opens inside
+    the water would swallow the gas next to it. With no gravity there is no "above": any empty
+    neighbour counts. (Venting and foam both ask this.)"""
+    exposed = cell_type_at(types, c) == EMPTY
+    for a in range(dim):
+        for s in range(2):
+            if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
+                exposed = True
+    if exposed and up_axis >= 0:
+        col = column_of(c, up_axis)
+        exposed = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+    return exposed
+
+
 @wp.kernel
 def vent_exposed_gas(
     x: wp.array(dtype=wp.vec3),
@@ -501,25 +525,13 @@ def vent_exposed_gas(
 ):
     """Gas that reaches the open air joins it: the particle is retired and its mass booked as
     vented, so gas mass stays exactly accounted for.
-
-    Open air: an empty cell beside the particle's cell, with no liquid above it in its column.
-    Without the second condition a particle-free hole that stretching opens inside the water
-    would swallow the gas next to it. With no gravity there is no "above": any empty neighbour.
     """
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
     q = (x[p] - wp.vec3(origin)) / dx
     c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
-    exposed = cell_type_at(types, c) == EMPTY
-    for a in range(dim):
-        for s in range(2):
-            if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
-                exposed = True
-    if exposed and up_axis >= 0:
-        col = column_of(c, up_axis)
-        exposed = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
-    if exposed:
+    if exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
         active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
 

@@ -196,7 +196,7 @@ class Simulation:
 
             self.subgrid = SubgridBubbleStage(self, self.scene.effects["subgrid_bubbles"])
         if "entrainment" in self.effects:
-            from .subgrid import EntrainmentStage
+            from .entrainment import EntrainmentStage
 
             self.entrainment = EntrainmentStage(self, self.scene.effects["entrainment"])
         if "foam" in self.effects:

@@ -156,3 +156,17 @@ def test_gas_scene_summary_reports_the_gas_budget(tmp_path, capsys):
     assert main(["run", str(ROOT / "examples" / "rising_bubble.toml"), "--num-frames", "1", "--stage-path", str(out)]) == 0
     err = capsys.readouterr().err
     assert "gas: 0.0% of its mass vented" in err and "vent" in err.splitlines()[-1]
+
+
+def test_quality_flag_replaces_the_scenes_settings():
+    import argparse
+
+    from warp_mpm_bubbles.cli import add_run_overrides, scene_with_overrides
+
+    parser = argparse.ArgumentParser()
+    add_run_overrides(parser)
+    scene = scene_with_overrides(ROOT / "examples" / "dam_break.toml", parser.parse_args(["--quality", "reference"]))
+    assert scene.solver.quality == "reference" and scene.solver.refine == 2
+    assert scene.solver.particles_per_cell == 8  # the preset's 3D value replaces the file's (also 8)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--quality", "best"])

@@ -383,3 +383,26 @@ def test_gas_material_defaults():
           shapes=[Box("air", (0.0, 0.0), (0.1, 0.1))]).validate()
     assert (gas.density, gas.eos, gas.gamma) == (1.2, "isothermal", 1.4)
     assert gas.is_gas and not Material("water").is_gas
+
+
+def test_quality_presets_fill_unset_settings_and_the_scene_wins():
+    from warp_mpm_bubbles.quality import PRESETS
+
+    def scene(**solver):
+        return Scene(Domain((0.4, 0.2), 0.02), {"w": Material("w")}, [Box("w", (0, 0), (0.4, 0.1))],
+                     solver=SolverSettings(**solver)).validate()
+
+    production = scene()
+    assert production.solver.quality == "production"
+    assert (production.solver.cfl, production.solver.cg_tolerance, production.solver.refine) == (0.5, 1e-5, 1)
+    preview = scene(quality="preview", cfl=0.7)  # the scene's own cfl wins over the preset's
+    assert preview.solver.cfl == 0.7 and preview.solver.cg_tolerance == PRESETS["preview"]["cg_tolerance"]
+    # --quality replaces the scene's values, the derived particle radius included.
+    reference = preview.with_quality("reference")
+    assert reference.solver.cfl == PRESETS["reference"]["cfl"] and reference.solver.refine == 2
+    assert reference.domain.cells == (40, 20, 1) and reference.domain.dx == pytest.approx(0.01)
+    assert reference.domain.cell_size == 0.02  # the scene's geometry stays as written
+    assert reference.output.particle_radius == pytest.approx(0.5 * 0.01 / 2)
+    assert reference.with_quality("production").domain.cells == (20, 10, 1)
+    with pytest.raises(SceneError, match=r"\[solver\].quality = 'ultra'.*'preview'"):
+        scene(quality="ultra")

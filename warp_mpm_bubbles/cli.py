@@ -101,7 +101,8 @@ def _check(path) -> int:
     seeds = seed_particles(scene)
     d = scene.domain
     print(f"{path}: OK")
-    print(f"  {d.dim}D domain {' x '.join(f'{s:g}' for s in d.size)} m, cells {d.cells[:d.dim]}, dx {d.cell_size:g} m")
+    print(f"  {d.dim}D domain {' x '.join(f'{s:g}' for s in d.size)} m, cells {d.cells[:d.dim]}, dx {d.dx:g} m"
+          + (f" (cell_size {d.cell_size:g} refined {d.refine}x, quality {scene.solver.quality})" if d.refine > 1 else ""))
     print(f"  materials: {', '.join(f'{m.name} ({m.kind}, {m.density:g} kg/m^3)' for m in scene.materials.values())}")
     print(f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles (before colliders carve them)"
           if scene.colliders else f"  {len(scene.shapes)} shapes, {len(seeds['positions']):,} particles")

@@ -39,7 +39,7 @@ class EmitterStage:
     def __init__(self, sim):
         scene = sim.scene
         self.dim = scene.dim
-        self.dx = scene.domain.cell_size
+        self.dx = scene.domain.dx
         self.spacing = self.dx / scene.solver.particles_per_cell ** (1.0 / self.dim)
         self.seed = scene.solver.seed
         self.materials = list(scene.materials)

@@ -47,7 +47,7 @@ class MacGrid:
     @classmethod
     def from_domain(cls, domain) -> "MacGrid":
         nx, ny, nz = domain.cells
-        dx = float(domain.cell_size)
+        dx = float(domain.dx)
         size = (nx * dx, ny * dx, nz * dx)
         return cls(dim=domain.dim, dx=dx, interior=(nx, ny, nz), domain_size=size)
 

@@ -3,8 +3,9 @@
 A preset fills the [solver] settings it governs when the scene leaves them unset; a value the
 scene sets itself wins. `--quality` on the command line replaces the scene's own values (the
 user's latest word). The values come from the measured accuracy-vs-time frontier
-(`benchmarks/accuracy_vs_time.py`, docs/accuracy_vs_time.md); the resolution stays the scene's
-[domain].cell_size, the largest lever, which the same table prices separately.
+(`benchmarks/accuracy_vs_time.py`, docs/accuracy_vs_time.md). Resolution is the one lever that
+lowered every error there, so `reference` also refines the grid: `refine` grid cells per
+[domain].cell_size along each axis (the scene's geometry and cell_size stay as written).
 """
 
 from __future__ import annotations
@@ -16,11 +17,11 @@ DEFAULT_QUALITY = "production"
 # the volume drift, 0.25 lowers it; more than 2 particles per cell and axis lowered no error beyond
 # the seed noise and raised the dam break's volume loss (2D and 3D), so every preset keeps 4 / 8.
 PRESETS: dict[str, dict] = {
-    "preview": {"particles_per_cell": (4, 8), "cfl": 1.0, "cg_tolerance": 1e-3},
-    "production": {"particles_per_cell": (4, 8), "cfl": 0.5, "cg_tolerance": 1e-5},
-    "reference": {"particles_per_cell": (4, 8), "cfl": 0.25, "cg_tolerance": 1e-6},
+    "preview": {"particles_per_cell": (4, 8), "cfl": 1.0, "cg_tolerance": 1e-3, "refine": 1},
+    "production": {"particles_per_cell": (4, 8), "cfl": 0.5, "cg_tolerance": 1e-5, "refine": 1},
+    "reference": {"particles_per_cell": (4, 8), "cfl": 0.25, "cg_tolerance": 1e-6, "refine": 2},
 }
-GOVERNED = ("particles_per_cell", "cfl", "cg_tolerance")
+GOVERNED = ("particles_per_cell", "cfl", "cg_tolerance", "refine")
 
 
 def preset_value(quality: str, name: str, dim: int):

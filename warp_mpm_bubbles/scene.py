@@ -50,14 +50,20 @@ class Domain:
     gravity: tuple[float, ...] | None = None
     walls: dict[str, str] | str = "free_slip"
     ambient_pressure: float = 101325.0  # Pa: the air outside the liquid, and gas at its rest density
+    refine: ClassVar[int] = 1  # grid cells per cell_size along each axis: [solver].refine, set by validate
 
     @property
     def dim(self) -> int:
         return len(self.size)
 
     @property
+    def dx(self) -> float:
+        """The simulation's grid spacing: cell_size / [solver].refine."""
+        return self.cell_size / self.refine
+
+    @property
     def cells(self) -> tuple[int, int, int]:
-        n = tuple(int(round(s / self.cell_size)) for s in self.size)
+        n = tuple(int(round(s / self.cell_size)) * self.refine for s in self.size)
         return n if len(n) == 3 else (*n, 1)
 
     @property
@@ -86,16 +92,20 @@ class Domain:
                 c.fail(f"{t}.size", self.size,
                        f"{AXES[a]} = {_g(s)} gives only {round(n)} cells of cell_size {_g(h)}; at least 4 "
                        f"are needed: enlarge [domain].size or reduce [domain].cell_size")
-        total = math.prod(round(s / h) for s in self.size)
-        if total > MAX_CELLS:
-            c.fail(f"{t}.size", self.size, f"gives {total:.3g} cells of cell_size {_g(h)}; at most {MAX_CELLS:.3g} "
-                                           f"fit in memory and in Warp's 32-bit indices: shrink [domain].size or "
-                                           f"enlarge [domain].cell_size")
+        self._check_total(c, 1)
         if self.gravity is None:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
         self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, dim_why(dim))
         self.walls = self._resolve_walls(c, dim)
         self.ambient_pressure = c.number(f"{t}.ambient_pressure", self.ambient_pressure, gt=0)
+
+    def _check_total(self, c, refine):
+        total = math.prod(round(s / self.cell_size) * refine for s in self.size)
+        if total > MAX_CELLS:
+            c.fail("[domain].size", self.size,
+                   f"gives {total:.3g} cells of {_g(self.cell_size / refine)} m (cell_size {_g(self.cell_size)}, "
+                   f"refine {refine}); at most {MAX_CELLS:.3g} fit in memory and in Warp's 32-bit indices: shrink "
+                   f"[domain].size, enlarge [domain].cell_size or lower [solver].refine")
 
     def _resolve_walls(self, c, dim):
         keys = WALL_KEYS[: 2 * dim]
@@ -272,7 +282,7 @@ class Cylinder(_Shape):
                 self.length = domain.size[a]
                 self.center = tuple(domain.size[a] / 2 if i == a else x for i, x in enumerate(self.center))
             else:  # 2D disk: the length is the one-cell slab thickness (unused)
-                self.length = domain.cell_size
+                self.length = domain.dx
         self.length = c.number(f"{key}.length", self.length, gt=0)
 
 
@@ -286,6 +296,7 @@ class SolverSettings:
     cfl: float | None = None  # None: from the preset (production: 0.5)
     max_dt: float | None = None
     cg_tolerance: float | None = None  # None: from the preset (production: 1e-5)
+    refine: int | None = None  # grid cells per [domain].cell_size and axis; None: from the preset (reference: 2)
     cg_max_iterations: int = 2000
     preconditioner: str = "multigrid"  # V-cycle PCG; "jacobi" needs 10-75x the iterations (benchmarks/)
     interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
@@ -301,6 +312,7 @@ class SolverSettings:
         self.particles_per_cell = c.number(f"{t}.particles_per_cell", self.particles_per_cell,
                                            ge=1, le=64, whole=True)
         self.cfl = c.number(f"{t}.cfl", self.cfl, gt=0, le=2)
+        self.refine = c.number(f"{t}.refine", self.refine, ge=1, le=8, whole=True)
         if self.max_dt is not None:
             self.max_dt = c.number(f"{t}.max_dt", self.max_dt, gt=0)
         self.cg_tolerance = c.number(f"{t}.cg_tolerance", self.cg_tolerance, gt=0, lt=1)
@@ -331,10 +343,14 @@ class Output:
         self.frames = c.number(f"{t}.frames", self.frames, ge=1, whole=True)
         self.format = c.choice(f"{t}.format", self.format, OUTPUT_FORMATS)
         if self.particle_radius is None:
-            ppc, dim = scene.solver.particles_per_cell, scene.dim
-            self.particle_radius = 0.5 * scene.domain.cell_size / ppc ** (1 / dim)
+            self.particle_radius = self.default_radius(scene)
         self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
         self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
+
+    @staticmethod
+    def default_radius(scene) -> float:
+        """Half the particle spacing: neighbouring spheres just touch."""
+        return 0.5 * scene.domain.dx / scene.solver.particles_per_cell ** (1 / scene.dim)
 
     def _check_writable(self, c, key):
         # Refuse now rather than after a long run; missing directories are fine (the writer creates them).
@@ -390,6 +406,8 @@ class Scene:
         self.domain._validate(c)
         c.instance("[solver]", self.solver, SolverSettings, "a SolverSettings")
         self.solver._validate(c, self.dim)
+        self.domain._check_total(c, self.solver.refine)
+        self.domain.refine = self.solver.refine
         c.instance("[materials]", self.materials, dict, "a table of materials keyed by name")
         if not self.materials:
             c.fail("[materials]", self.materials, "no materials defined; add one, e.g. [materials.water]")
@@ -410,7 +428,7 @@ class Scene:
         for i, s in enumerate(self.shapes):
             if not shape_seeds_particles(s, self.domain, ppc, seed):
                 c.fail(f"[shapes.{i}]", s, f"seeds no particles: it is smaller than the particle spacing "
-                                           f"({_g(self.domain.cell_size / ppc ** (1 / self.dim))}); enlarge it "
+                                           f"({_g(self.domain.dx / ppc ** (1 / self.dim))}); enlarge it "
                                            f"or refine [domain].cell_size", shown=s.describe())
         return self
 
@@ -518,6 +536,8 @@ class Scene:
     def with_quality(self, quality: str) -> Scene:
         """A validated copy at another quality preset; the preset replaces the scene's own values."""
         new = copy.deepcopy(self)
+        if new.output.particle_radius == new.output.default_radius(new):
+            new.output.particle_radius = None  # derived from the settings the preset replaces: derive again
         new.solver.quality = quality
         for name in GOVERNED:
             setattr(new.solver, name, None)

@@ -75,7 +75,7 @@ class SubgridBubbles:
 
     def _validate(self, c: _Checker, t, scene):
         if self.radius is None:
-            self.radius = scene.domain.cell_size
+            self.radius = scene.domain.dx
         self.radius = c.number(f"{t}.radius", self.radius, gt=0)
         self.convert_every = c.number(f"{t}.convert_every", self.convert_every, ge=1, whole=True)
         # Below 1 so a bubble just converted one way is not converted straight back (hysteresis).
@@ -175,10 +175,10 @@ class GasInjector:
         self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
         self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
         self.start, self.stop = _window(c, key, self.start, self.stop)
-        if self.radius < scene.domain.cell_size and "subgrid_bubbles" not in scene.effects:
+        if self.radius < scene.domain.dx and "subgrid_bubbles" not in scene.effects:
             c.fail(f"{key}.radius", self.radius,
-                   f"bubbles under one cell ({_g(scene.domain.cell_size)} m) are not resolved by the grid: add "
-                   f"[effects.subgrid_bubbles], or use a radius >= [domain].cell_size")
+                   f"bubbles under one grid cell ({_g(scene.domain.dx)} m) are not resolved by the grid: add "
+                   f"[effects.subgrid_bubbles], or use a radius >= that")
 
 
 EMITTER_TYPES = {cls.type_name: cls for cls in (LiquidInflow, GasInjector)}
@@ -213,7 +213,7 @@ class Collider:
                              "glass": ("radius", "height", "wall_thickness")}
 
     def _validate(self, c: _Checker, key, scene):
-        dim, dx = scene.dim, scene.domain.cell_size
+        dim, dx = scene.dim, scene.domain.dx
         self.type = c.choice(f"{key}.type", self.type, COLLIDER_TYPES)
         needs = self.NEEDS[self.type]
         for name in ("radius", "size", "length", "height", "wall_thickness"):
@@ -234,7 +234,7 @@ class Collider:
             # The grid sees a solid wall only where a cell centre is inside it.
             if self.wall_thickness < dx:
                 c.fail(f"{key}.wall_thickness", self.wall_thickness,
-                       f"must be >= [domain].cell_size ({_g(dx)}) for the grid to see the wall; thicken it "
+                       f"must be >= one grid cell ({_g(dx)} m) for the grid to see the wall; thicken it "
                        f"or refine the grid")
             if self.wall_thickness >= self.radius:
                 c.fail(f"{key}.wall_thickness", self.wall_thickness, f"must be < radius = {_g(self.radius)}")

@@ -26,7 +26,7 @@ def sub_cells_per_axis(ppc: int, dim: int) -> int:
 
 def slab_samples(domain: Domain, ppc: int, seed: int, ix: int) -> np.ndarray:
     """Sample positions (M, dim) float64 for the cells with x index `ix`, cell-major order."""
-    dim, h = domain.dim, domain.cell_size
+    dim, h = domain.dim, domain.dx
     k = sub_cells_per_axis(ppc, dim)
     rest = np.indices(domain.cells[1:dim]).reshape(dim - 1, -1).T  # (n, dim-1) y[, z] indices
     cell = np.column_stack([np.full(len(rest), ix), rest])  # (n, dim)
@@ -39,7 +39,7 @@ def slab_samples(domain: Domain, ppc: int, seed: int, ix: int) -> np.ndarray:
 
 
 def _slabs_overlapping(lo_x: float, hi_x: float, domain: Domain) -> range:
-    nx, h = domain.cells[0], domain.cell_size
+    nx, h = domain.cells[0], domain.dx
     return range(max(0, math.floor(lo_x / h)), min(nx, math.floor(hi_x / h) + 1))
 
 
@@ -53,14 +53,14 @@ def shape_seeds_particles(shape, domain: Domain, ppc: int, seed: int) -> bool:
 def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
     """Seed the scene's shapes with particles.
 
-    Returns positions (N,3) float32 (2D: z = 0.5*cell_size), velocities (N,3) float32,
+    Returns positions (N,3) float32 (2D: z = 0.5*dx), velocities (N,3) float32,
     material (N,) int32 (index into list(scene.materials)), volume (N,) float32 and the initial
     gauge pressure (N,) float32 of gas shapes.
     Each sample takes the material and velocity of the LAST shape containing it.
     """
     scene.validate()
     domain, solver = scene.domain, scene.solver
-    dim, h, ppc = domain.dim, domain.cell_size, solver.particles_per_cell
+    dim, h, ppc = domain.dim, domain.dx, solver.particles_per_cell
     names = list(scene.materials)
     material_of = np.array([names.index(s.material) for s in scene.shapes], np.int32)
     velocity_of = np.zeros((len(scene.shapes), 3), np.float32)
@@ -93,6 +93,6 @@ def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
         "velocities": velocity_of[owner],
         "material": material_of[owner],
         "pressure": pressure_of[owner],  # initial gauge pressure (gas shapes; 0 elsewhere)
-        # 2D too: each particle stands for a share of a cell_size**3 cell of the one-cell-thick slab
+        # 2D too: each particle stands for a share of a dx**3 cell of the one-cell-thick slab
         "volume": np.full(n, h**3 / ppc, np.float32),
     }

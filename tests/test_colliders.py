@@ -104,3 +104,25 @@ def test_bad_colliders_are_refused_by_name(tmp_path, change, words):
         pool(tmp_path, [Collider(**args)]).validate()
     for w in words:
         assert w in str(err.value)
+
+
+def test_colliders_are_written_to_the_usd_stage(tmp_path):
+    # A DCC must see the ball: a prim per collider, the moving one sampled at every frame on the
+    # path the simulation used; the static glass is a mesh with its extent.
+    from pxr import Usd, UsdGeom
+
+    from warp_mpm_bubbles.runner import run_scene
+
+    ball = Collider("sphere", center=(0.4, 0.5), radius=0.05, acceleration=(0.0, -G), stop=0.1)
+    glass = Collider("glass", center=(0.12, 0.0), radius=0.1, height=0.3, wall_thickness=0.02)
+    scene = pool(tmp_path, [ball, glass]).replace_output(path=tmp_path / "c.usda", frames=4)
+    run_scene(scene, device="cpu", progress=False)
+    stage = Usd.Stage.Open(str(tmp_path / "c.usda"))
+    sphere = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Colliders/sphere_0"))
+    for frame in range(5):
+        moved = sphere.ComputeLocalToWorldTransform(frame).ExtractTranslation()
+        expected = scene.colliders[0].center_at(frame / scene.output.fps)
+        assert (moved[0], moved[1]) == pytest.approx(tuple(expected), abs=1e-9)
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Colliders/glass_1"))
+    lo, hi = mesh.GetExtentAttr().Get()
+    assert (lo[0], hi[0], hi[1]) == pytest.approx((-0.1, 0.1, 0.3), abs=1e-6)

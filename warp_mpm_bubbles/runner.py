@@ -14,6 +14,7 @@ import numpy as np
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from .grid import PHASE_GAS
 from .simulation import Simulation, SimulationError
+from .usd_colliders import write_colliders
 from .usd_output import StageWriter
 
 
@@ -75,8 +76,13 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
             log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
     materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
     bar = ProgressBar(out.frames, stream=log) if progress else None
+    decorate = None
+    if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
+        def decorate(stage):
+            write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
     with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
-                     format=out.format, up_axis=out.up_axis, resume_after=resume_after) as writer:
+                     format=out.format, up_axis=out.up_axis, resume_after=resume_after,
+                     decorate=decorate) as writer:
         if resume_after is None:
             _write(sim, writer, checkpoint)
         while sim.frame < out.frames:

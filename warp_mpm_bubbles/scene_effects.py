@@ -251,6 +251,11 @@ class Collider:
     def moves(self) -> bool:
         return any(v != 0.0 for v in self.velocity + self.acceleration)
 
+    def center_at(self, t: float) -> np.ndarray:
+        """Where the centre is at time t (the same path colliders.shape_center follows)."""
+        tau = min(max(t, self.start), math.inf if self.stop is None else self.stop) - self.start
+        return np.array(self.center) + np.array(self.velocity) * tau + 0.5 * tau * tau * np.array(self.acceleration)
+
     @property
     def max_speed(self) -> float:
         """The fastest it moves (at the start or at the stop time: the speed is linear in time)."""

@@ -66,9 +66,10 @@ class StageWriter:
 
     def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
                  particle_radius: float, format: str = "instancer", up_axis: str = "Y",
-                 meters_per_unit: float = 1.0, resume_after: int | None = None):
+                 meters_per_unit: float = 1.0, resume_after: int | None = None, decorate=None):
         """resume_after=k keeps the frames already on disk up to k (a resumed run) and goes on
-        from k + 1; otherwise an existing output is replaced."""
+        from k + 1; otherwise an existing output is replaced. decorate(stage), if given, adds
+        prims that do not change per frame (or are sampled up front: colliders) to the top layer."""
         t0 = time.perf_counter()
         if format not in FORMATS:
             raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
@@ -105,7 +106,7 @@ class StageWriter:
             shutil.rmtree(self._frames_dir, ignore_errors=True)
             self._frames_dir.mkdir()
 
-        self._top = self._build_top(materials, fps, up_axis, meters_per_unit)
+        self._top = self._build_top(materials, fps, up_axis, meters_per_unit, decorate)
         manifest = Sdf.Layer.CreateAnonymous(ext)
         self._declare(manifest)
         _atomic_export(manifest, self._manifest)
@@ -116,7 +117,7 @@ class StageWriter:
             self._publish(int(resume_after))  # the kept frames stay visible from the first moment
         self.seconds += time.perf_counter() - t0
 
-    def _build_top(self, materials, fps, up_axis, meters_per_unit) -> Sdf.Layer:
+    def _build_top(self, materials, fps, up_axis, meters_per_unit, decorate=None) -> Sdf.Layer:
         layer = Sdf.Layer.CreateAnonymous(self._ext)  # we hold it, not the stage
         stage = Usd.Stage.Open(layer)
         world = UsdGeom.Xform.Define(stage, "/World")  # typed: Blender skips untyped parents
@@ -153,6 +154,8 @@ class StageWriter:
             pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
             pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
             UsdGeom.PrimvarsAPI(pts).CreatePrimvar("materialIndex", _T.IntArray, UsdGeom.Tokens.vertex)
+        if decorate is not None:
+            decorate(stage)
         return layer  # the stage is dropped: later edits go straight to the layer
 
     def _declare(self, layer: Sdf.Layer) -> dict:

@@ -47,16 +47,18 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
         p = data["frames"][f]
         pos = p["positions"]
         if by_material:
-            for m in range(n_materials):
+            for m in range(n_materials):  # later materials (gas, foam) drawn larger, on top
                 pts = pos[p["proto_indices"] == m]
-                ax.scatter(pts[:, axes[0]], pts[:, axes[1]], s=1.0, color=palette[m % len(palette)], linewidths=0)
+                ax.scatter(pts[:, axes[0]], pts[:, axes[1]], s=1.0 if m == 0 else 3.0, color=palette[m % len(palette)],
+                           linewidths=0)
         else:
             speed = np.linalg.norm(p["velocities"], axis=1)
             order = np.argsort(pos[:, 2])
             sc = ax.scatter(pos[order, axes[0]], pos[order, axes[1]], c=speed[order], s=1.0, cmap="viridis",
                             vmin=0.0, vmax=vmax, linewidths=0)
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
+        c_lo, c_hi = _draw_colliders(ax, stage_path, f, axes)
+        ax.set_xlim(min(lo[0], c_lo[0]), max(hi[0], c_hi[0]))
+        ax.set_ylim(min(lo[1], c_lo[1]), max(hi[1], c_hi[1]))
         ax.set_aspect("equal")
         ax.set_title(f"frame {f}  t = {f / data['fps']:.3f} s", fontsize=9)
         ax.tick_params(labelsize=7)
@@ -67,3 +69,42 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
     fig.savefig(png_path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return png_path
+
+
+def _draw_colliders(ax, stage_path, frame, axes):
+    """Draw the colliders written under /World/Colliders (grey), projected on `axes`; returns
+    the (lo, hi) corners of what was drawn in those axes (inf, -inf if nothing)."""
+    from pxr import Usd, UsdGeom
+
+    drawn_lo, drawn_hi = np.full(2, np.inf), np.full(2, -np.inf)
+    stage = Usd.Stage.Open(str(stage_path))
+    root = stage.GetPrimAtPath("/World/Colliders")
+    for prim in root.GetChildren() if root else []:
+        box = UsdGeom.Imageable(prim).ComputeWorldBound(frame, UsdGeom.Tokens.default_).ComputeAlignedRange()
+        lo, hi = box.GetMin(), box.GetMax()
+        a, b = axes
+        drawn_lo = np.minimum(drawn_lo, (lo[a], lo[b]))
+        drawn_hi = np.maximum(drawn_hi, (hi[a], hi[b]))
+        if prim.IsA(UsdGeom.Mesh):  # the glass: its points, projected
+            m = UsdGeom.Mesh(prim)
+            pts = np.asarray(m.GetPointsAttr().Get()) + np.asarray(
+                UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(frame).ExtractTranslation())
+            ax.fill(*_outline(pts[:, [a, b]]), color="0.6", alpha=0.6, linewidth=0)
+        elif prim.IsA(UsdGeom.Cube):
+            ax.add_patch(_patches().Rectangle((lo[a], lo[b]), hi[a] - lo[a], hi[b] - lo[b], color="0.6", alpha=0.6))
+        else:  # spheres and cylinders: a disk in a side view of a 2D run, an outline otherwise
+            centre = ((lo[a] + hi[a]) / 2, (lo[b] + hi[b]) / 2)
+            ax.add_patch(_patches().Ellipse(centre, hi[a] - lo[a], hi[b] - lo[b], color="0.6", alpha=0.6))
+    return drawn_lo, drawn_hi
+
+
+def _patches():
+    import matplotlib.patches
+
+    return matplotlib.patches
+
+
+def _outline(points):
+    """The first half of an extruded outline's points is its front cap, in order."""
+    half = points[: len(points) // 2] if len(points) % 2 == 0 else points
+    return half[:, 0], half[:, 1]

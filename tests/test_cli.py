@@ -170,3 +170,20 @@ def test_quality_flag_replaces_the_scenes_settings():
     assert scene.solver.particles_per_cell == 8  # the preset's 3D value replaces the file's (also 8)
     with pytest.raises(SystemExit):
         parser.parse_args(["--quality", "best"])
+
+
+@pytest.mark.parametrize("example", ["pour_glass", "plunge", "air_stone"])
+def test_effect_examples_write_water_air_foam_and_their_colliders(tmp_path, example):
+    from pxr import Usd, UsdGeom
+
+    out = tmp_path / f"{example}.usdc"
+    cmd = [sys.executable, str(ROOT / "examples" / f"{example}.py"), "--device", "cpu", "--num-frames", "1",
+           "--stage-path", str(out)]
+    run = subprocess.run(cmd, check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True)
+    stage = Usd.Stage.Open(str(out))
+    instancer = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Particles"))
+    assert [p.name for p in instancer.GetPrototypesRel().GetTargets()] == ["water", "air", "foam"]
+    assert len(stage.GetPrimAtPath("/World/Colliders").GetChildren()) == 1
+    assert sorted(read_frames(out)["frames"]) == [0, 1]
+    effects = next(line for line in run.stderr.splitlines() if line.strip().startswith("effects:"))
+    assert "foam" in effects and "subgrid_bubbles" in effects and "colliders" in effects

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.simulation import Simulation
 
@@ -18,6 +19,12 @@ AIR_AND_WATER = lambda: {"water": Material("water"), "air": Material("air", kind
 R0, R_INF = 0.01, 0.05
 OMEGA_2D = math.sqrt(2 * P_ATM / (1000.0 * R0**2 * math.log(R_INF / R0)))  # DESIGN §5, sigma = 0
 STEPS_PER_PERIOD = 40
+
+
+def upward_crossings(t, V):
+    """Times where V rises through its mean (linear interpolation between samples)."""
+    x = V - V.mean()
+    return [t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i]) for i in range(len(x) - 1) if x[i] < 0 <= x[i + 1]]
 
 
 @pytest.fixture(scope="module")
@@ -47,9 +54,7 @@ def test_bubble_breathes_at_the_2d_minnaert_frequency(breathing):
     # Reference: omega0^2 = 2 p0 / (rho R0^2 ln(Rinf/R0)) (isothermal, sigma = 0) = 178.6 Hz.
     # Measured -7.6% at 8 cells per radius and -6.2% at 16 (the same at 40 and 80 steps per
     # period: the error is spatial and shrinks slowly); 10% bounds the 8-cell result.
-    t, V = breathing["t"], breathing["V"]
-    x = V - V.mean()
-    up = [t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i]) for i in range(len(x) - 1) if x[i] < 0 <= x[i + 1]]
+    up = upward_crossings(breathing["t"], breathing["V"])
     assert len(up) >= 3, up
     f_sim = 1.0 / np.diff(up).mean()
     f_ref = OMEGA_2D / (2 * math.pi)
@@ -119,3 +124,152 @@ def test_liquid_only_scene_runs_no_gas_stage(tmp_path):
     sim.step(sim.stable_dt())
     assert not sim.has_gas and "vent" not in sim.timer.stages_run
     assert sim.gas_volume.shape == (1, 1, 1)  # gas arrays are placeholders, never read
+
+
+# ------------------------------------- isothermal collapse to the first radius minimum (DESIGN §5)
+# Rows of refdata/rayleigh_plesset_isothermal_collapse_reference.csv (p_g0/p_inf = 0.2, inviscid,
+# sigma = 0; units R0, rho, p_inf): t, R_3D, R_2D with a free outer surface at Rout0 = 10 R0; and the
+# first minima in its header. They check the integrator that gives the reference for the smaller
+# annulus simulated below.
+RP_TABLE = [(0.50, 0.893942, 0.956038), (1.00, 0.433708, 0.816791), (1.50, 0.753384, 0.548315),
+            (1.80, 0.922190, 0.267607), (1.90, 0.954892, 0.126627), (1.94, 0.965315, 0.083752),
+            (1.95, 0.967695, 0.085424), (2.00, 0.978272, 0.149284), (2.10, 0.993036, 0.285838),
+            (2.50, 0.970742, 0.625590), (3.00, 0.723018, 0.858281), (4.00, None, 0.997704),
+            (6.00, None, 0.303422), (8.00, None, 0.990800)]
+RP_FIRST_MINIMUM = {3: (1.11585, 0.19108), 2: (1.94252, 0.08353)}
+P_G0 = 0.2  # initial gas pressure over the ambient one
+R_OUT0 = 3.0  # outer radius of the liquid annulus, in R0 (the table's 10 R0 would need 9x the cells)
+
+
+def test_rayleigh_plesset_integrator_reproduces_the_reference_table():
+    # RK4 with steps of 1e-3: measured, the table to 5e-7 (its 6 decimals), the header minima to
+    # 2e-5 (its 5 decimals); bounds 1e-5 and 1e-4, far below the simulation's errors.
+    for dim, column, r_out0 in ((3, 1, None), (2, 2, 10.0)):
+        t, R = radius_history(P_G0, dim, r_out0, t_end=8.0 if dim == 2 else 3.0)
+        rows = np.array([(row[0], row[column]) for row in RP_TABLE if row[column] is not None])
+        assert np.abs(np.interp(rows[:, 0], t, R) - rows[:, 1]).max() < 1e-5, dim
+        t_min, R_min = first_minimum(t, R)
+        assert (t_min, R_min) == pytest.approx(RP_FIRST_MINIMUM[dim], abs=1e-4), dim
+
+
+def collapse_run(cells_per_radius, out_dir):
+    """A bubble of radius R0 seeded at 0.2 p_inf in a free liquid annulus of outer radius 3 R0, no
+    gravity, sampled every step until it has passed its first minimum. Returns t / t_unit, R / R0."""
+    dx = R0 / cells_per_radius
+    L = 2 * (R_OUT0 + 0.5) * R0
+    u_p = math.sqrt(P_ATM / 1000.0)  # the speed scale of the pressure-driven flow, sqrt(p_inf/rho)
+    scene = Scene(
+        domain=Domain(size=(L, L), cell_size=dx, gravity=(0.0, 0.0), walls="open", ambient_pressure=P_ATM),
+        materials=AIR_AND_WATER(),
+        shapes=[Cylinder("water", center=(L / 2, L / 2), radius=R_OUT0 * R0),
+                Cylinder("air", center=(L / 2, L / 2), radius=R0, pressure=(P_G0 - 1.0) * P_ATM)],  # gauge
+        # The flow starts from rest, where the CFL limit says nothing: cap the step at the CFL step
+        # of the speed scale (0.5 dx / u_p, 0.03 t_unit at 16 cells); near the minimum the CFL
+        # limit of the real speed (up to 3 u_p) takes over.
+        solver=SolverSettings(max_dt=0.5 * dx / u_p),
+        output=Output(path=str(out_dir / "c.usdc")),
+    )
+    sim = Simulation(scene, "cpu")
+    t_unit = R0 * math.sqrt(1000.0 / P_ATM)
+    # The 2D run is a slab one cell (dx) thick: the gas volume is its area times dx.
+    radius = lambda: math.sqrt(sim.gas_budget()["volume"] / (math.pi * dx)) / R0  # noqa: E731
+    t, R = [0.0], [radius()]
+    budget0 = sim.gas_budget()
+    while (min(R) > 0.3 or R[-1] < 0.3) and sim.time < 3.0 * t_unit:  # until past the minimum
+        sim.advance_to(sim.time + sim.stable_dt())
+        t.append(sim.time / t_unit)
+        R.append(radius())
+    return dict(sim=sim, t=np.array(t), R=np.array(R), budget0=budget0)
+
+
+# Measured (seed 0; seeds 1-3 in brackets), errors of the first minimum against RK4 of the 2D
+# equation at Rout0 = 3 R0 (t = 1.4178 t_unit, R = 0.08353 R0; R_min does not depend on Rout0),
+# steps capped at 0.5 dx/u_p, wall time of the run on one core of this (shared) machine:
+#   cells/R0    8       12      16              20      24              32             48      64
+#   t_min     +10.0%  +4.9%   +2.75% (2.7-2.9)  +1.9%  +1.25% (1.21)   +0.77% (0.59)  +0.36%  +0.17%
+#   R_min     +95%    +60%    +31% (30-36)      +26%   +19% (17)       +13% (14)      +9.5%   +8.7%
+#   time      2 s     4.5 s   2-3.5 s           -      12 s            14-32 s        200 s   550 s
+# t_min converges at order about 1.8, R_min at about 1 (R_min is 1.3 cells at 16 per radius). All
+# errors are late and shallow (energy lost: about 10% at 16 cells), never early or deep. R_min also
+# depends on the step: with caps of 0.5/0.25/0.125 dx/u_p, +31/+28/+16% at 16 cells and
+# +13/+18/+17% at 32 (t_min +2.75/+2.6/+2.1% and +0.77/+1.0/+1.1%); the bounds hold for the cap
+# used here. Each bound lies between the measured error and that of the next coarser resolution.
+COLLAPSE_TOLERANCE = {16: (0.04, 0.45), 32: (0.01, 0.16)}  # cells/R0: (t_min, R_min), relative
+
+
+@pytest.fixture(scope="module", params=[16, pytest.param(32, marks=pytest.mark.slow)])
+def collapse(request, tmp_path_factory):
+    run = collapse_run(request.param, tmp_path_factory.mktemp("collapse"))
+    t_ref, R_ref = first_minimum(*radius_history(P_G0, 2, R_OUT0, t_end=3.0))
+    return dict(run, cells=request.param, t_ref=t_ref, R_ref=R_ref)
+
+
+def test_collapse_starts_from_the_seeded_bubble(collapse):
+    # R = sqrt(V / (pi dx)) of the seeded gas is R0 up to the seeding noise (measured 0.9992-1.0012
+    # at 16 cells for seeds 0-3): checks the slab-volume reading that the collapse test relies on.
+    assert collapse["R"][0] == pytest.approx(1.0, abs=5e-3)
+    budget = collapse["sim"].gas_budget()
+    assert budget["total"] == pytest.approx(collapse["budget0"]["total"], rel=1e-12)
+    assert budget["vented"] == 0.0
+
+
+def test_first_collapse_minimum_matches_rayleigh_plesset(collapse):
+    t, R = collapse["t"], collapse["R"]
+    start = int(np.argmax(R < 0.5))  # the collapse proper: seeding noise makes tiny early wiggles
+    t_min, R_min = first_minimum(t[start - 1:], R[start - 1:])
+    tol_t, tol_R = COLLAPSE_TOLERANCE[collapse["cells"]]
+    assert t_min / collapse["t_ref"] - 1.0 == pytest.approx(0.0, abs=tol_t), (t_min, collapse["t_ref"])
+    assert R_min / collapse["R_ref"] - 1.0 == pytest.approx(0.0, abs=tol_R), (R_min, collapse["R_ref"])
+
+
+# ------------------------------------------ Minnaert in 3D: a bubble breathing in a liquid shell
+R_SHELL = 3 * R0  # free outer surface of the liquid shell
+OMEGA_3D = math.sqrt(3 * P_ATM / (1000.0 * R0**2) / (1 - R0 / R_SHELL))  # DESIGN §5, sigma = 0: 339.8 Hz
+
+
+@pytest.fixture(scope="module")
+def breathing_3d(tmp_path_factory):
+    """A bubble seeded 2% above ambient at the centre of a free liquid sphere, no gravity, 3 periods."""
+    L = 2 * (R_SHELL + 0.5 * R0)
+    period = 2 * math.pi / OMEGA_3D
+    scene = Scene(
+        domain=Domain(size=(L, L, L), cell_size=R0 / 6, gravity=(0.0, 0.0, 0.0), walls="open"),
+        materials=AIR_AND_WATER(),
+        shapes=[Sphere("water", center=(L / 2,) * 3, radius=R_SHELL),
+                Sphere("air", center=(L / 2,) * 3, radius=R0, pressure=0.02 * P_ATM)],
+        solver=SolverSettings(max_dt=period / STEPS_PER_PERIOD),
+        output=Output(path=str(tmp_path_factory.mktemp("minnaert3d") / "m.usdc")),
+    )
+    sim = Simulation(scene, "cpu")
+    budget0 = sim.gas_budget()
+    times, volumes = [], []
+    while sim.time < 3.2 * period:
+        sim.advance_to(sim.time + period / STEPS_PER_PERIOD)
+        times.append(sim.time)
+        volumes.append(sim.gas_budget()["volume"])
+    return dict(sim=sim, t=np.array(times), V=np.array(volumes), budget0=budget0)
+
+
+@pytest.mark.slow
+def test_bubble_breathes_at_the_3d_minnaert_frequency(breathing_3d):
+    # Reference: omega0^2 = 3 p0 / (rho R0^2) / (1 - R0/Rinf) (isothermal, sigma = 0), Rinf = 3 R0.
+    # Measured -15.5% at 4 cells per radius (-16.1% with 80 steps per period: the error is
+    # spatial), -10.8% at 6 (this test, 43 s on one loaded core), -8.7% at 8 (100 s): about first
+    # order, as in 2D. 15% bounds the 6-cell result and fails the 4-cell one.
+    up = upward_crossings(breathing_3d["t"], breathing_3d["V"])
+    assert len(up) >= 3, up
+    f_sim = 1.0 / np.diff(up).mean()
+    f_ref = OMEGA_3D / (2 * math.pi)
+    assert abs(f_sim / f_ref - 1.0) < 0.15, (f_sim, f_ref)
+
+
+@pytest.mark.slow
+def test_3d_bubble_volume_follows_pv_constant_and_keeps_its_gas(breathing_3d):
+    # As in 2D: the mean volume is 1.02 times the seeded one (measured 1.0204 at 6 cells, 1.0209
+    # at 4); bound 0.2%. The seeded volume gives back R0 (measured 0.9996 R0).
+    b0 = breathing_3d["budget0"]
+    assert (3 * b0["volume"] / (4 * math.pi)) ** (1 / 3) == pytest.approx(R0, rel=5e-3)
+    assert breathing_3d["V"].mean() / b0["volume"] == pytest.approx(1.02, rel=2e-3)
+    budget = breathing_3d["sim"].gas_budget()
+    assert budget["total"] == pytest.approx(b0["total"], rel=1e-12)
+    assert budget["vented"] == 0.0

@@ -298,6 +298,7 @@ def pressure_diagonal_and_rhs(
     diag: wp.array3d(dtype=float),
     extra_diag: wp.array3d(dtype=float),
     rhs: wp.array3d(dtype=float),
+    target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
 ):
     """Diagonal and right-hand side of the one two-phase system (DESIGN §2), per fluid cell c:
@@ -312,6 +313,8 @@ def pressure_diagonal_and_rhs(
     none, the system is singular and the solver projects out the constant.
     """
     i, j, k = wp.tid()
+    if two_phase != 0:
+        target_div[i, j, k] = 0.0
     if types[i, j, k] != FLUID:
         diag[i, j, k] = 1.0
         extra_diag[i, j, k] = 0.0
@@ -361,11 +364,43 @@ def pressure_diagonal_and_rhs(
                 phi += gas_volume[i, j, k] * inv_dx2 / dx
             excess = wp.min(phi - 1.0 + VOLUME_NOISE_BAND, 0.0) + excess
         b += volume_correction * excess / (dt * dt)
+        if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
+            target_div[i, j, k] = volume_correction * excess / dt
     diag[i, j, k] = d * inv_dx2 + extra
     extra_diag[i, j, k] = extra
     rhs[i, j, k] = b
     wp.atomic_add(counters, 0, 1)
     wp.atomic_add(counters, 1, pinned)
+
+
+@wp.kernel
+def gas_volume_rate(
+    types: wp.array3d(dtype=wp.int32),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    target_div: wp.array3d(dtype=float),
+    dx: float,
+    dim: int,
+    rate: wp.array3d(dtype=float),
+):
+    """The volume change per second that belongs to the gas in each cell, per unit gas volume.
+
+    The liquid is incompressible, so a cell's divergence (beyond what the volume correction asked
+    of its liquid) is its gas expanding or compressing. Interpolating the divergence to every
+    particle instead handed most of it to the liquid particles beside the interface, whose J
+    nobody reads, and the gas's J lagged (tests/test_gas.py's collapse measured it).
+    """
+    i, j, k = wp.tid()
+    rate[i, j, k] = 0.0
+    vg = gas_volume[i, j, k]
+    if types[i, j, k] != FLUID or vg <= 0.0:
+        return
+    div = (vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]) / dx
+    if dim == 3:
+        div += (vel_w[i, j, k + 1] - vel_w[i, j, k]) / dx
+    rate[i, j, k] = (div - target_div[i, j, k]) * dx * dx * dx / vg
 
 
 @wp.kernel

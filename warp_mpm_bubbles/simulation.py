@@ -27,12 +27,12 @@ import warp as wp
 
 from . import grid_kernels as gk
 from . import tension_kernels as tk
-from .grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
+from .grid import INTERFACE_SHARP, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .scene import INTERFACES
 from .seeding import seed_particles
 from .timing import StageTimer
-from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2g_gas
+from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2g_gas, update_gas_J
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tension.py measures it)
@@ -166,6 +166,7 @@ class Simulation:
         gas_cells = cells if self.has_gas else (lambda dtype=float: wp.zeros((1, 1, 1), dtype=dtype, device=dev))
         self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv = gas_cells(), gas_cells(), gas_cells(), gas_cells()
         self.gas_count = gas_cells(wp.int32)
+        self.target_div, self.gas_rate = gas_cells(), gas_cells()
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
@@ -304,7 +305,7 @@ class Simulation:
                          [self.types, self.phase_cells, *self.inv_rho, *self.vel, self.liq_volume, self.gas_volume,
                           self.gas_pv, self.gas_kv, two_phase, self._interface, g.dx, dt, g.dim,
                           settings.volume_correction,
-                          self.diag, self.extra_diag, self.rhs, self.counters])
+                          self.diag, self.extra_diag, self.rhs, self.target_div, self.counters])
         with self.timer("pressure"):
             n_fluid, n_pinned = (int(c) for c in self.counters.numpy())
             bad = int(self.nonfinite.numpy()[0])
@@ -334,10 +335,21 @@ class Simulation:
             if self.colliders:
                 self.colliders.set_face_velocities(self, self.time)
         with self.timer("g2p"):
+            # Sharp interface: the gas takes its cells' volume change (before g2p moves it: the weights
+            # p2g_gas used). The baseline treats a cell with any gas as all gas, so there the
+            # published rule stays: J follows the interpolated divergence.
+            gas_J_from_cells = int(self.has_gas and self._interface == INTERFACE_SHARP)
+            if gas_J_from_cells:
+                self._launch(gk.gas_volume_rate, g.cells, [self.types, *self.vel, self.gas_volume, self.target_div,
+                                                           g.dx, g.dim, self.gas_rate])
+                self._launch(update_gas_J, self.num_particles,
+                             [self.x, self.phase, self.active, self.gas_rate, self._origin, g.dx, g.dim,
+                              self._domain_hi, dt, self.J])
             self.max_speed.zero_()
             self._launch(g2p_advect, self.num_particles,
                          [*self.vel, self._origin, g.dx, g.dim, dt, self._domain_hi,
-                          self.x, self.v, self.C, self.J, self.active, self.phase, self.max_speed])
+                          self.x, self.v, self.C, self.J, self.active, self.phase, gas_J_from_cells,
+                          self.max_speed])
         if self.entrainment:
             with self.timer("entrainment"):
                 self.entrainment.step(self, dt)

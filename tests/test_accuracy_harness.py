@@ -8,8 +8,8 @@ import sys
 
 SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "accuracy_vs_time.py"
 EXPECTED_COLUMNS = [
-    "case", "metric", "setting", "value", "is_default", "run_id", "quality", "resolution", "resolution_unit", "dx",
-    "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed", "particles", "cells", "steps",
+    "case", "metric", "setting", "value", "is_default", "run_id", "batch", "quality", "resolution", "resolution_unit",
+    "dx", "refine", "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed", "particles", "cells", "steps",
     "cg_iterations_mean", "wall_s", "cpu_s", "measured", "reference", "error", "error_signed", "error_kind", "note",
 ]
 
@@ -41,3 +41,23 @@ def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):
     text = (tmp_path / "accuracy_vs_time.md").read_text()
     assert "Convergence with resolution" in text and "cpu" in text
     assert "| laplace: pressure_jump | preview |" in (tmp_path / "presets.md").read_text()
+
+    # --only presets reruns the quality and seed rows and keeps the others from the saved JSON
+    assert harness.main(["--quick", "--cases", "laplace", "--out-dir", str(tmp_path), "--no-plot",
+                         "--only", "presets"]) == 0
+    with open(tmp_path / "accuracy_vs_time.csv", newline="") as f:
+        merged = list(csv.DictReader(f))
+    assert len(merged) == len(rows)
+    assert {r["batch"] for r in merged if r["setting"] in ("quality", "seed")} == {"1"}
+    assert {r["batch"] for r in merged if r["setting"] not in ("quality", "seed")} == {"0"}
+    assert [r["error"] for r in merged] == [r["error"] for r in rows]  # the CPU runs are deterministic
+
+
+def test_presets_apply_through_with_quality_and_refine_the_grid(tmp_path):
+    harness = _load_harness()
+    case = harness.CASES["laplace"]
+    scene = harness.build_scene(case, {"quality": "reference", "resolution": 8}, tmp_path)
+    assert scene.solver.refine == 2 and scene.solver.cfl == 0.25
+    assert math.isclose(scene.domain.dx, harness.R0 / 16)
+    production = harness.build_scene(case, {"quality": "production", "resolution": 8, "cfl": 1.0}, tmp_path)
+    assert production.validate().solver.refine == 1 and production.solver.cfl == 1.0

@@ -92,3 +92,20 @@ def test_bad_emitters_are_refused_by_name(tmp_path, emitter, words):
         scene(tmp_path, [emitter]).validate()
     for w in words:
         assert w in str(err.value)
+
+
+@pytest.mark.parametrize("emitter, words", [
+    (GasInjector("air", (0.1, 0.1), rate=5.0, radius=50.0), ["[emitters.0].radius", "<= 0.15"]),
+    (GasInjector("air", (0.1, 0.1), rate=1e12, radius=0.02), ["[emitters.0].rate", "<= 100000"]),
+    (GasInjector("air", (0.1, 0.1), rate=5.0, radius=0.02, spread=10.0), ["[emitters.0].spread", "<= 0.15"]),
+    (LiquidInflow("water", (0.1, 0.2), (1e200, 0.0), 0.01, 1.0), None),  # valid: huge but finite
+    (LiquidInflow("water", (0.1, 0.2), (1e-200, 1e-200), 0.01, 1.0), None),  # valid: tiny but not zero
+])
+def test_emitter_sizes_and_rates_are_bounded(tmp_path, emitter, words):
+    if words is None:
+        assert scene(tmp_path, [emitter]).validate().emitters[0].direction[0] > 0.7
+        return
+    with pytest.raises(SceneError) as err:
+        scene(tmp_path, [emitter]).validate()
+    for w in words:
+        assert w in str(err.value)

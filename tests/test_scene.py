@@ -406,3 +406,24 @@ def test_quality_presets_fill_unset_settings_and_the_scene_wins():
     assert reference.with_quality("production").domain.cells == (20, 10, 1)
     with pytest.raises(SceneError, match=r"\[solver\].quality = 'ultra'.*'preview'"):
         scene(quality="ultra")
+
+
+def test_quality_flag_rederives_grid_defaults_of_effects():
+    # Sub-grid threshold and entrainment bubble radius default to the grid spacing: --quality
+    # reference halves both, exactly as writing quality = "reference" in the file does.
+    from warp_mpm_bubbles.scene import tomllib  # tomli on Python 3.10
+
+    d = tomllib.loads((EXAMPLES / "plunge.toml").read_text())
+    d.setdefault("solver", {})["quality"] = "reference"
+    in_file = Scene.from_dict(d)
+    flag = load_scene(EXAMPLES / "plunge.toml").with_quality("reference")
+    for key, field in (("subgrid_bubbles", "radius"), ("entrainment", "bubble_radius")):
+        assert getattr(flag.effects[key], field) == getattr(in_file.effects[key], field)
+    assert flag.effects["subgrid_bubbles"].radius == pytest.approx(0.0025)  # dx = 5 mm / 2
+
+
+def test_foam_takes_no_viscosity_or_surface_tension():
+    for key in ("viscosity", "surface_tension"):
+        with pytest.raises(SceneError, match=rf"\[materials.foam\].{key}.*foam takes no"):
+            Scene(Domain((0.4, 0.2), 0.02), {"w": Material("w"), "foam": Material("foam", kind="foam", **{key: 0.01})},
+                  [Box("w", (0, 0), (0.4, 0.1))]).validate()

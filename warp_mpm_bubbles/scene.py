@@ -20,7 +20,7 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from .scene_checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, dim_why
+from .scene_checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .scene_effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from .seeding import shape_seeds_particles
@@ -158,6 +158,11 @@ class Material:
             c.fail(f"{t}.surface_tension", self.surface_tension,
                    "surface tension belongs to the liquid (it acts on its surface with gas and air); "
                    "set it on the liquid material")
+        if self.kind == "foam":  # foam rides the surface one-way: it has no stress of its own
+            for name in ("surface_tension", "viscosity"):
+                if getattr(self, name) > 0:
+                    c.fail(f"{t}.{name}", getattr(self, name), f"foam takes no {name} (it moves with the liquid's "
+                                                               f"surface); remove the key or set it on the liquid")
 
 
 class _Shape:
@@ -343,7 +348,7 @@ class Output:
         self.frames = c.number(f"{t}.frames", self.frames, ge=1, whole=True)
         self.format = c.choice(f"{t}.format", self.format, OUTPUT_FORMATS)
         if self.particle_radius is None:
-            self.particle_radius = self.default_radius(scene)
+            derive(self, "particle_radius", self.default_radius(scene))
         self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
         self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
 
@@ -536,8 +541,8 @@ class Scene:
     def with_quality(self, quality: str) -> Scene:
         """A validated copy at another quality preset; the preset replaces the scene's own values."""
         new = copy.deepcopy(self)
-        if new.output.particle_radius == new.output.default_radius(new):
-            new.output.particle_radius = None  # derived from the settings the preset replaces: derive again
+        for obj in (new.output, *new.effects.values()):  # defaults derived from the grid: derive again
+            underive(obj)
         new.solver.quality = quality
         for name in GOVERNED:
             setattr(new.solver, name, None)

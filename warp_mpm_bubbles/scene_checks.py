@@ -102,3 +102,16 @@ class _Checker:
 
 def dim_why(dim):
     return f" (the scene is {dim}D: [domain].size has {dim} entries)"
+
+
+def derive(obj, name: str, value):
+    """Fill an unset field from other settings and remember that it was derived, so a change of
+    those settings (Scene.with_quality) derives it again instead of keeping the old value."""
+    setattr(obj, name, value)
+    obj.__dict__.setdefault("_derived", set()).add(name)
+
+
+def underive(obj):
+    """Unset the fields `derive` filled, ready to be derived again."""
+    for name in obj.__dict__.pop("_derived", ()):
+        setattr(obj, name, None)

@@ -17,9 +17,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from .scene_checks import AXES, _Checker, _did_you_mean, _g, dim_why
+from .scene_checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
 
 BOUNDARIES = ("no_slip", "free_slip")
+MAX_BUBBLE_RATE = 1.0e5  # bubbles per second from one gas injector
 COLLIDER_TYPES = ("sphere", "box", "cylinder", "glass")
 
 
@@ -38,6 +39,10 @@ def _window(c: _Checker, key, start, stop):
     if stop is not None:
         stop = c.number(f"{key}.stop", stop, gt=start)
     return start, stop
+
+
+def _active_between(emitter, t0: float, t1: float) -> bool:
+    return emitter.start <= t1 and (emitter.stop is None or emitter.stop > t0)
 
 
 def _inside_domain(c: _Checker, key, point, scene, what):
@@ -75,7 +80,7 @@ class SubgridBubbles:
 
     def _validate(self, c: _Checker, t, scene):
         if self.radius is None:
-            self.radius = scene.domain.dx
+            derive(self, "radius", scene.domain.dx)
         self.radius = c.number(f"{t}.radius", self.radius, gt=0)
         self.convert_every = c.number(f"{t}.convert_every", self.convert_every, ge=1, whole=True)
         # Below 1 so a bubble just converted one way is not converted straight back (hysteresis).
@@ -102,7 +107,7 @@ class Entrainment:
         if sub is None:
             c.fail(t, {}, "entrainment seeds sub-grid bubbles: add an [effects.subgrid_bubbles] table")
         if self.bubble_radius is None:
-            self.bubble_radius = 0.5 * sub.radius
+            derive(self, "bubble_radius", 0.5 * sub.radius)
         self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, gt=0, le=sub.radius)
         self.rate = c.number(f"{t}.rate", self.rate, ge=0)
         self.min_speed = c.number(f"{t}.min_speed", self.min_speed, ge=0)
@@ -134,13 +139,16 @@ class LiquidInflow:
         self.center = c.vector(f"{key}.center", self.center, dim, dim_why(dim))
         _inside_domain(c, f"{key}.center", self.center, scene, "the nozzle centre")
         self.direction = c.vector(f"{key}.direction", self.direction, dim, dim_why(dim))
-        norm = math.sqrt(sum(d * d for d in self.direction))
-        if norm == 0.0:
+        norm = math.hypot(*self.direction)  # no overflow or underflow for huge or tiny components
+        if norm == 0.0 or not math.isfinite(norm):
             c.fail(f"{key}.direction", list(self.direction), "must not be zero: the direction the stream flows")
         self.direction = tuple(d / norm for d in self.direction)
-        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0, le=0.5 * min(scene.domain.size))
         self.speed = c.number(f"{key}.speed", self.speed, gt=0)
         self.start, self.stop = _window(c, key, self.start, self.stop)
+
+    def speed_between(self, t0: float, t1: float) -> float:
+        return self.speed if _active_between(self, t0, t1) else 0.0
 
     @property
     def volume_rate(self) -> float:
@@ -168,10 +176,12 @@ class GasInjector:
         _material(c, f"{key}.material", self.material, scene, ("gas",))
         self.center = c.vector(f"{key}.center", self.center, dim, dim_why(dim))
         _inside_domain(c, f"{key}.center", self.center, scene, "the injector centre")
-        self.rate = c.number(f"{key}.rate", self.rate, gt=0)
-        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
+        # Bubbles are emitted one by one on the host: beyond MAX_BUBBLE_RATE use entrainment instead.
+        self.rate = c.number(f"{key}.rate", self.rate, gt=0, le=MAX_BUBBLE_RATE)
+        half = 0.5 * min(scene.domain.size)  # larger bubbles or spreads do not fit in the domain
+        self.radius = c.number(f"{key}.radius", self.radius, gt=0, le=half)
         self.radius_spread = c.number(f"{key}.radius_spread", self.radius_spread, ge=0, le=1)
-        self.spread = c.number(f"{key}.spread", self.spread, ge=0)
+        self.spread = c.number(f"{key}.spread", self.spread, ge=0, le=half)
         self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
         self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
         self.start, self.stop = _window(c, key, self.start, self.stop)
@@ -179,6 +189,10 @@ class GasInjector:
             c.fail(f"{key}.radius", self.radius,
                    f"bubbles under one grid cell ({_g(scene.domain.dx)} m) are not resolved by the grid: add "
                    f"[effects.subgrid_bubbles], or use a radius >= that")
+
+
+    def speed_between(self, t0: float, t1: float) -> float:
+        return math.hypot(*self.velocity) if _active_between(self, t0, t1) else 0.0
 
 
 EMITTER_TYPES = {cls.type_name: cls for cls in (LiquidInflow, GasInjector)}
@@ -256,9 +270,10 @@ class Collider:
         tau = min(max(t, self.start), math.inf if self.stop is None else self.stop) - self.start
         return np.array(self.center) + np.array(self.velocity) * tau + 0.5 * tau * tau * np.array(self.acceleration)
 
-    @property
-    def max_speed(self) -> float:
-        """The fastest it moves (at the start or at the stop time: the speed is linear in time)."""
+    def speed_between(self, t0: float, t1: float) -> float:
+        """The fastest it moves during [t0, t1] (the velocity is linear in time while it moves)."""
+        t0, t1 = max(t0, self.start), min(t1, math.inf if self.stop is None else self.stop)
+        if t0 > t1:
+            return 0.0
         v0, a = np.array(self.velocity), np.array(self.acceleration)
-        duration = 0.0 if self.stop is None else self.stop - self.start
-        return float(max(np.linalg.norm(v0), np.linalg.norm(v0 + a * duration)))
+        return float(max(np.linalg.norm(v0 + a * (t - self.start)) for t in (t0, t1)))

@@ -205,7 +205,7 @@ class Simulation:
 
             self.foam = FoamStage(self, self.scene.effects["foam"])
         materials = list(self.scene.materials.values())
-        liquids = [m for m in materials if not m.is_gas]
+        liquids = [m for m in materials if m.kind == "liquid"]
         self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # tension runs only if > 0
         if self.sigma > 0.0:
             self.curvature, self.level, self.level_tmp = (wp.zeros(g.cells, dtype=float, device=dev) for _ in range(3))
@@ -382,14 +382,18 @@ class Simulation:
         the capillary and viscous limits when those stages are on; max_dt."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self._gravity))
-        # Emitted streams and moving colliders bring their speed before any particle has it.
-        speed = max([self._max_speed] + [e.speed for e in self.scene.emitters if hasattr(e, "speed")]
-                    + [c.max_speed for c in self.scene.colliders])
+        # Emitted streams and moving colliders bring their speed before any particle has it (the
+        # fastest they move from now to a frame ahead: steps never span more than a frame).
+        t0, t1 = self.time, self.time + self.frame_dt
+        speed = max([self._max_speed] + [e.speed_between(t0, t1) for e in self.scene.emitters]
+                    + [c.speed_between(t0, t1) for c in self.scene.colliders])
         speed += math.sqrt(g_mag * self.grid.dx)
         dt = s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf
         if self.sigma > 0.0:
             # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
-            rho = sum(sorted((m.density for m in self.scene.materials.values()), reverse=True)[:2])
+            mats = self.scene.materials.values()
+            rho = max(m.density for m in mats if m.kind == "liquid") + max(
+                (m.density for m in mats if m.is_gas), default=0.0)
             dt = min(dt, math.sqrt(rho * self.grid.dx**3 / (4.0 * math.pi * self.sigma)))
         if self.nu_max > 0.0:
             # Explicit diffusion: dt <= dx^2 / (2 dim nu) (DESIGN §4: rho dx^2 / (6 mu) in 3D).

@@ -374,8 +374,14 @@ class SubgridBubbleStage:
         retired = np.concatenate(groups_up + groups_down)
         active[retired] = 0
         sim.active[:n].assign(active)
+        # The liquid's positions as the pushes leave them: each new bubble pushes from where the
+        # previous one left the water (from the snapshot, a second push would undo the first).
+        liquid_x = snap["x"].astype(np.float64)
+        liquid = np.flatnonzero((phase == PHASE_LIQUID) & (active == 1))
         for members in groups_up:
-            self._to_resolved(sim, snap, phase, members)
+            self._to_resolved(sim, snap, members, liquid_x, liquid)
+        if groups_up:
+            sim.x[:n].assign(liquid_x.astype(np.float32))
         for members in groups_down:
             self._to_subgrid(sim, snap, members)
         self.conversions["gathered"] += len(groups_up)
@@ -436,8 +442,9 @@ class SubgridBubbleStage:
         sim.host_state["gas_mass_rounding"] = sim.host_state["gas_mass_rounding"] + (
             exact - stored.astype(np.float64).sum())
 
-    def _to_resolved(self, sim, snap, phase, members):
-        """Fill the merged volume with gas particles at the seeding spacing; the liquid makes room."""
+    def _to_resolved(self, sim, snap, members, liquid_x, liquid):
+        """Fill the merged volume with gas particles at the seeding spacing; the liquid (rows
+        `liquid` of the host positions liquid_x, updated in place) makes room."""
         g = sim.grid
         mass = snap["mass"][members].astype(np.float64)
         rest = snap["vol0"][members].astype(np.float64)
@@ -460,19 +467,14 @@ class SubgridBubbleStage:
         self._book_rounding(sim, total_mass, each)
         # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
         radius = (bubble_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
-        liquid = np.flatnonzero((phase == PHASE_LIQUID) & (sim.active.numpy()[: len(phase)] == 1))
-        x = snap["x"][liquid].astype(np.float64)
+        x = liquid_x[liquid]
         d = x[:, : g.dim] - centre[: g.dim]
         r = np.linalg.norm(d, axis=1)
         near = (r < PUSH_REACH * radius) & (r > 0.0)
         if near.any():
             scale = (r[near] ** g.dim + radius**g.dim) ** (1.0 / g.dim) / r[near]
             x[near, : g.dim] = centre[: g.dim] + d[near] * scale[:, None]
-            x = np.clip(x, 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
-            moved = liquid[near]
-            xs = sim.x.numpy()[: len(phase)].copy()
-            xs[moved] = x[near]
-            sim.x[: len(phase)].assign(xs)
+            liquid_x[liquid[near]] = np.clip(x[near], 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
 
     def _to_subgrid(self, sim, snap, members):
         mass = snap["mass"][members].astype(np.float64)

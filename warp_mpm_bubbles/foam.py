@@ -29,7 +29,7 @@ import warp as wp
 from . import grid_kernels as gk
 from .grid import PHASE_FOAM, PHASE_GAS
 from .transfer_kernels import (
-    CELL_OFFSET, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, gather_component, grid_coord, make_stencil,
+    CELL_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, make_stencil, wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -103,24 +103,14 @@ def advance_foam(
     if phi < AIRBORNE_PHI:
         vp = vp + dt * gravity  # spray: nothing to ride on
     else:
-        gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
-        gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
-        gw = wp.vec4(0.0)
-        if dim == 3:
-            gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
         # Relative to the liquid, foam settles where phi = 1/2: submerged it floats up (buoyant),
         # above the surface it sinks back (heavier than air), the faster the farther away.
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
-        vp = wp.vec3(gu[0], gv[0], gw[0]) + lift * up
+        vp = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim) + lift * up
     moved = xp + dt * vp
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    for a in range(dim):  # a wall stops the motion into it, as in g2p
-        if moved[a] < xn[a]:
-            vp[a] = wp.max(vp[a], 0.0)
-        if moved[a] > xn[a]:
-            vp[a] = wp.min(vp[a], 0.0)
     x[p] = xn
-    v[p] = vp
+    v[p] = wall_stopped(moved, xn, vp, dim)  # a wall stops the motion into it, as in g2p
 
 
 @wp.kernel
@@ -145,9 +135,7 @@ def gas_to_foam(
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    q = (x[p] - origin) / dx
-    c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
-    if not gk.exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
+    if not gk.exposed_to_open_air(types, ceiling, gk.cell_of(x[p], origin, dx), up_axis, up_sign, dim):
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material

@@ -520,6 +520,13 @@ def liquid_ceiling(
 
 
 @wp.func
+def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
+    """The index of the cell holding world position x (ghost layer included)."""
+    q = (x - origin) / dx
+    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+
+
+@wp.func
 def exposed_to_open_air(
     types: wp.array3d(dtype=wp.int32),
     ceiling: wp.array3d(dtype=wp.int32),
@@ -564,8 +571,7 @@ def vent_exposed_gas(
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    q = (x[p] - wp.vec3(origin)) / dx
-    c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+    c = cell_of(x[p], origin, dx)
     if exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
         active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))

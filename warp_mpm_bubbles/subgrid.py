@@ -44,8 +44,8 @@ import warp as wp
 from . import grid_kernels as gk
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
 from .transfer_kernels import (
-    GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, gather_component, grid_coord,
-    make_stencil,
+    GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
+    make_stencil, wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -92,12 +92,6 @@ def volume_ratio(law: int, gamma: float, p_gauge: float, p_atm: float):
     if law == GAS_ADIABATIC:
         return wp.pow(p_atm / p_abs, 1.0 / gamma)
     return 1.0
-
-
-@wp.func
-def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
-    q = (x - origin) / dx
-    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
 
 
 @wp.func
@@ -185,7 +179,7 @@ def advance_subgrid(
     if active[p] == 0 or phase[p] != PHASE_SUBGRID:
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    c = cell_of(xp, origin, dx)
+    c = gk.cell_of(xp, origin, dx)
     t = types[c[0], c[1], c[2]]
     leaves = t == FLUID and phase_cells[c[0], c[1], c[2]] == PHASE_GAS
     if t == EMPTY:
@@ -206,13 +200,7 @@ def advance_subgrid(
     r = wp.pow(0.75 * vol / PI, 1.0 / 3.0)
     rho_g = mass[p] / vol
     m_eff = (rho_g + ADDED_MASS * rho_l) * vol
-    inv_dx = 1.0 / dx
-    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
-    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
-    gw = wp.vec4(0.0)
-    if dim == 3:
-        gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
-    u_l = wp.vec3(gu[0], gv[0], gw[0])
+    u_l = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim)
     b = m_eff * (v[p] - u_l) - dt * (rho_l - rho_g) * vol * gravity
     b_len = wp.length(b)
     w = wp.vec3(0.0)
@@ -225,11 +213,7 @@ def advance_subgrid(
     impulse[p] = dt * k * w  # what the drag took from the bubble goes to the liquid next step
     moved = xp + dt * vp
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    for a in range(dim):
-        if moved[a] < xn[a]:
-            vp[a] = wp.max(vp[a], 0.0)
-        if moved[a] > xn[a]:
-            vp[a] = wp.min(vp[a], 0.0)
+    vp = wall_stopped(moved, xn, vp, dim)
     x[p] = xn
     v[p] = vp
     wp.atomic_max(max_speed, 0, wp.length(vp))

@@ -278,6 +278,38 @@ def gather_component(vel: wp.array3d(dtype=float), X: wp.vec3, dim: int, dx: flo
     return wp.vec4(value, grad[0], grad[1], grad[2])
 
 
+@wp.func
+def interpolate_velocity(
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    xp: wp.vec3,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+):
+    """The grid velocity at xp (PIC: without the APIC gradient), for the Lagrangian effects."""
+    inv_dx = 1.0 / dx
+    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
+    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
+    w = float(0.0)
+    if dim == 3:
+        w = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)[0]
+    return wp.vec3(gu[0], gv[0], w)
+
+
+@wp.func
+def wall_stopped(moved: wp.vec3, kept: wp.vec3, vp: wp.vec3, dim: int):
+    """The velocity of a particle clamped from `moved` back to `kept`: it loses what pushed it out."""
+    out = vp
+    for a in range(dim):
+        if moved[a] < kept[a]:
+            out[a] = wp.max(vp[a], 0.0)
+        if moved[a] > kept[a]:
+            out[a] = wp.min(vp[a], 0.0)
+    return out
+
+
 @wp.kernel
 def g2p_advect(
     vel_u: wp.array3d(dtype=float),
@@ -319,12 +351,7 @@ def g2p_advect(
     # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
     moved = xp + dt * vp
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    for a in range(dim):
-        if moved[a] < xn[a]:
-            vp[a] = wp.max(vp[a], 0.0)
-        if moved[a] > xn[a]:
-            vp[a] = wp.min(vp[a], 0.0)
     x[p] = xn
-    v[p] = vp
+    v[p] = wall_stopped(moved, xn, vp, dim)
     C[p] = Cp
-    wp.atomic_max(max_speed, 0, wp.length(vp))
+    wp.atomic_max(max_speed, 0, wp.length(v[p]))

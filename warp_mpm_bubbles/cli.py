@@ -15,7 +15,7 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--num-frames", type=int, default=None, help="frames to simulate (overrides the scene)")
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
     parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
-                        help="quality preset; replaces the scene's particles_per_cell, cfl and cg_tolerance "
+                        help="quality preset; replaces the scene's particles_per_cell, cfl, cg_tolerance and refine "
                              "(README: error and cost per preset)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--resume", action="store_true",

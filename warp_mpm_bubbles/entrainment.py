@@ -118,7 +118,6 @@ class EntrainmentStage:
     def __init__(self, sim, settings):
         self.settings = settings
         self._capacity = 0
-        self._buffers = None
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
 
     def _allocate(self, sim, capacity):

@@ -89,7 +89,10 @@ def _draw_colliders(ax, stage_path, frame, axes):
             m = UsdGeom.Mesh(prim)
             pts = np.asarray(m.GetPointsAttr().Get()) + np.asarray(
                 UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(frame).ExtractTranslation())
-            ax.fill(*_outline(pts[:, [a, b]]), color="0.6", alpha=0.6, linewidth=0)
+            if len(m.GetFaceVertexCountsAttr().Get()) == len(pts) // 2 + 2:  # a 2D U extruded: fill its cap
+                ax.fill(*_outline(pts[:, [a, b]]), color="0.6", alpha=0.6, linewidth=0)
+            else:  # a revolved 3D glass: its surface points
+                ax.scatter(pts[:, a], pts[:, b], s=1.0, color="0.6", linewidths=0)
         elif prim.IsA(UsdGeom.Cube):
             ax.add_patch(_patches().Rectangle((lo[a], lo[b]), hi[a] - lo[a], hi[b] - lo[b], color="0.6", alpha=0.6))
         else:  # spheres and cylinders: a disk in a side view of a 2D run, an outline otherwise
@@ -106,5 +109,5 @@ def _patches():
 
 def _outline(points):
     """The first half of an extruded outline's points is its front cap, in order."""
-    half = points[: len(points) // 2] if len(points) % 2 == 0 else points
+    half = points[: len(points) // 2]
     return half[:, 0], half[:, 1]

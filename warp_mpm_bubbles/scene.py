@@ -392,7 +392,7 @@ class Scene:
 
     @property
     def effect_names(self) -> list[str]:
-        """The effects this scene runs, in step order; a stage of any other effect never runs."""
+        """The effects this scene runs; a stage of any other effect never runs."""
         used = {s.material for s in self.shapes} | {e.material for e in self.emitters}
         mats = [self.materials[m] for m in used]
         names = ["gas"] if any(m.is_gas for m in mats) or "subgrid_bubbles" in self.effects else []

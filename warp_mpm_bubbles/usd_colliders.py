@@ -72,7 +72,7 @@ def write_colliders(stage, colliders, dim: int, slab: float, fps: float, frames:
             prim.CreateRadiusAttr(c.radius)
         elif c.type in ("sphere", "cylinder"):
             prim = UsdGeom.Cylinder.Define(stage, path)
-            along = "Z" if flat and (c.type == "sphere" or c.axis == "z") else c.axis.upper()
+            along = "Z" if flat and c.type == "sphere" else c.axis.upper()  # a 2D ball is a disk in the slab
             prim.CreateAxisAttr(along)
             prim.CreateRadiusAttr(c.radius)
             prim.CreateHeightAttr(slab if along == "Z" and flat else c.length)

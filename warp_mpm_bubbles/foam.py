@@ -161,9 +161,6 @@ class FoamStage:
         g = sim.grid
         self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
         up_axis, up_sign = sim._up
-        if up_axis >= 0:
-            sim.ceiling.fill_(-1)
-            sim._launch(gk.liquid_ceiling, g.cells, [sim.types, sim.phase_cells, up_axis, up_sign, sim.ceiling])
         sim._launch(gas_to_foam, sim.num_particles,
                     [sim.types, sim.ceiling, up_axis, up_sign, sim._origin, g.dx, g.dim, self.material,
                      self.settings.lifetime, self._seed, sim.x, sim.active, sim.phase, sim.material,

@@ -273,6 +273,11 @@ class Simulation:
                 self._launch(gk.classify_phases, g.cells,
                              [self.types, self.gas_count, self.liq_volume, self.gas_volume, self._interface,
                               self.phase_cells])
+                up_axis, up_sign = self._up
+                if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
+                    self.ceiling.fill_(-1)
+                    self._launch(gk.liquid_ceiling, g.cells, [self.types, self.phase_cells, up_axis, up_sign,
+                                                              self.ceiling])
             for a in g.axes:
                 self._launch(gk.zero_solid_faces, g.face_shape(a), [self.types, a, self.vel[a]])
                 self._launch(gk.face_inverse_density, g.face_shape(a),
@@ -362,10 +367,6 @@ class Simulation:
         elif self.has_gas:
             with self.timer("vent"):
                 up_axis, up_sign = self._up
-                if up_axis >= 0:
-                    self.ceiling.fill_(-1)
-                    self._launch(gk.liquid_ceiling, g.cells, [self.types, self.phase_cells, up_axis, up_sign,
-                                                              self.ceiling])
                 self._launch(gk.vent_exposed_gas, self.num_particles,
                              [self.x, self.phase, self.mass, self.types, self.ceiling, up_axis, up_sign,
                               self._origin, g.dx, g.dim, self.active, self.vented_mass])

@@ -327,9 +327,6 @@ class SubgridBubbleStage:
     def step(self, sim, dt: float):
         g = sim.grid
         up_axis, up_sign = sim._up
-        if up_axis >= 0:
-            sim.ceiling.fill_(-1)
-            sim._launch(gk.liquid_ceiling, g.cells, [sim.types, sim.phase_cells, up_axis, up_sign, sim.ceiling])
         sim._launch(advance_subgrid, sim.num_particles,
                     [*sim.vel, sim.types, sim.phase_cells, sim.ceiling, sim.pressure, up_axis, up_sign, sim._origin,
                      g.dx, g.dim, dt, sim._domain_hi, wp.vec3(*sim._gravity), self.rho_l, self.mu,

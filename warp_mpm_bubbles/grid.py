@@ -37,6 +37,11 @@ WALL_FREE_SLIP = 1
 WALL_OPEN = 2
 
 
+def sphere_radius(volume):
+    """Radius of the sphere of this volume: a bubble's, in 2D runs too (sub-grid bubbles are real)."""
+    return np.cbrt(0.75 * np.asarray(volume, np.float64) / np.pi)
+
+
 @dataclass(frozen=True)
 class MacGrid:
     dim: int  # 2 or 3

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
-from .grid import PHASE_GAS
+from .grid import PHASE_GAS, sphere_radius
 from .simulation import Simulation, SimulationError
 from .usd_colliders import write_colliders
 from .usd_output import StageWriter
@@ -102,7 +102,7 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint):
         p = sim.particles_numpy()
         radii = None  # without foam or sub-grid bubbles every particle has the output radius
         if sim.foam or sim.subgrid:  # those are real bubbles: the radius of their own volume
-            radii = np.where(p["phase"] > PHASE_GAS, np.cbrt(0.75 / np.pi * p["volume"]), writer.radius)
+            radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
         writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
         save_checkpoint(sim, checkpoint)
 

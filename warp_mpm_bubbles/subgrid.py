@@ -42,7 +42,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
-from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
+from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, sphere_radius
 from .transfer_kernels import (
     GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
     make_stencil, wall_stopped,
@@ -220,11 +220,6 @@ def advance_subgrid(
 
 
 # ------------------------------------------------------------------------------------- host side
-def bubble_radius(volume):
-    """Radius of the sphere of this volume (the physical bubble, in 2D runs too)."""
-    return np.cbrt(0.75 * np.asarray(volume, np.float64) / math.pi)
-
-
 def add_bubbles(sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
     """Append sub-grid bubbles (numpy: positions (n, 3) or (n, dim), radii (n,) current, m;
     velocities like positions) of the gas material `material_index`; returns their index range.
@@ -447,7 +442,7 @@ class SubgridBubbleStage:
         sim.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
         self._book_rounding(sim, total_mass, each)
         # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
-        radius = (bubble_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
+        radius = (sphere_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
         x = liquid_x[liquid]
         d = x[:, : g.dim] - centre[: g.dim]
         r = np.linalg.norm(d, axis=1)
@@ -464,7 +459,7 @@ class SubgridBubbleStage:
         total_mass, total_rest, total_volume = mass.sum(), rest.sum(), volume.sum()
         centre = (snap["x"][members] * volume[:, None]).sum(axis=0) / total_volume
         velocity = (snap["v"][members] * mass[:, None]).sum(axis=0) / total_mass
-        sl = add_bubbles(sim, centre[None], bubble_radius([total_volume]), velocity[None],
+        sl = add_bubbles(sim, centre[None], sphere_radius([total_volume]), velocity[None],
                          int(snap["material"][members[0]]))
         stored = np.array([total_mass], np.float32)
         sim.mass[sl].assign(stored)

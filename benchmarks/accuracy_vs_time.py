@@ -3,6 +3,7 @@
     python benchmarks/accuracy_vs_time.py            # full study on the CPU, writes docs/ (see its .md for the time)
     python benchmarks/accuracy_vs_time.py --quick    # smoke run, into benchmarks/results/accuracy_quick/
     python benchmarks/accuracy_vs_time.py --cases laplace,minnaert --out-dir /tmp/acc
+    python benchmarks/accuracy_vs_time.py --only presets   # rerun the quality and seed rows, keep the rest
 
 Cases (all 2D; the set-ups and error measures of the tests, re-created here so that the tests can
 change without moving this study):
@@ -28,12 +29,21 @@ and quality = "production"): resolution (cells per a or per radius), particles_p
 (only on the cases where the CFL limit sets the step: on the others the sampling interval or the
 capillary limit does), cg_tolerance, interface (gas cases), the three quality presets, and the
 seed (each preset again with two more seeds: the noise floor of each measure, and whether a
-preset lowers it).
+preset lowers it). A preset is applied as `--quality` applies it, with Scene.with_quality, so its
+grid refinement ([solver].refine) holds too: the `resolution` and `dx` columns give the grid
+simulated (cells per a or radius of the refined grid), `refine` the factor.
+
+Reruns: --only SETTING[,SETTING] (or --only presets, meaning quality,seed; --only all) reruns just
+those sweeps of the chosen cases and merges them into <out-dir>/accuracy_vs_time.json: the rows they
+replace go, every other row is kept with its measurement. Each row names its `batch`, the run that
+measured it (meta.batches in the JSON); compare timings only within one batch.
 
 Timing: every case first runs a few untimed steps at its smallest size, so Warp's kernels are
 compiled or loaded before any timed run. wall_s and cpu_s cover only the simulation loop
 (Simulation.advance_to), not set-up or the host-side measurements. Warp's CPU kernels run on one
-thread; cpu_s (process time) is less disturbed than wall_s when other work shares the cores.
+thread; cpu_s (process time) is less disturbed than wall_s when other work shares the cores. Each
+run is timed --repeat times and the fastest kept, except runs longer than --repeat-under seconds,
+timed once (a long run averages contention bursts over its length).
 
 Writes <out-dir>/accuracy_vs_time.{csv,md,png} and <out-dir>/presets.md (default out-dir: docs/,
 or benchmarks/results/accuracy_quick/ with --quick).
@@ -62,7 +72,7 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.diagnostics import gas_centroid_and_diameter
-from warp_mpm_bubbles.quality import PRESETS, preset_value
+from warp_mpm_bubbles.quality import GOVERNED, PRESETS, preset_value
 from warp_mpm_bubbles.simulation import Simulation
 from warp_mpm_bubbles.timing import describe_device
 
@@ -70,9 +80,9 @@ ROOT = Path(__file__).resolve().parent.parent
 MARTIN_MOYCE = ROOT / "tests" / "data" / "martin_moyce_1952_n2_2_a2.25in.csv"
 G, P_ATM, RHO_W, SIGMA = 9.81, 101325.0, 1000.0, 0.072
 
-COLUMNS = ["case", "metric", "setting", "value", "is_default", "run_id", "quality", "resolution",
-           "resolution_unit", "dx", "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed", "particles",
-           "cells", "steps", "cg_iterations_mean", "wall_s", "cpu_s", "measured", "reference", "error",
+COLUMNS = ["case", "metric", "setting", "value", "is_default", "run_id", "batch", "quality", "resolution",
+           "resolution_unit", "dx", "refine", "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed",
+           "particles", "cells", "steps", "cg_iterations_mean", "wall_s", "cpu_s", "measured", "reference", "error",
            "error_signed", "error_kind", "note"]
 
 
@@ -91,10 +101,26 @@ class Clock:
 
 
 def solver_settings(s: dict, **extra) -> SolverSettings:
-    """s: quality plus the overrides (None: the preset's value)."""
-    return SolverSettings(quality=s["quality"], particles_per_cell=s.get("particles_per_cell"), cfl=s.get("cfl"),
+    """s: the overrides of the production settings (None or absent: the preset's value)."""
+    return SolverSettings(particles_per_cell=s.get("particles_per_cell"), cfl=s.get("cfl"),
                           cg_tolerance=s.get("cg_tolerance"), interface=s.get("interface", "sharp"),
                           seed=s.get("seed", 0), **extra)
+
+
+def build_scene(case: Case, over: dict, tmp) -> Scene:
+    """The case's scene at one point of a sweep: production with the point's overrides, or a preset
+    applied as `--quality` applies it (Scene.with_quality: its cfl, tolerance, particles per cell and
+    grid refinement replace the scene's)."""
+    s = {k: v for k, v in over.items() if k not in ("quality", "resolution")}
+    quality = over.get("quality", "production")
+    scene = case.scene(s, over["resolution"], tmp)
+    if any(k in s for k in GOVERNED):  # a sweep of one governed setting around production
+        if quality != "production":
+            raise ValueError(f"{case.key}: overrides {s} at quality {quality}; the sweeps vary one setting "
+                             "around production")
+        return scene
+    # validated first: with_quality fails on a scene whose particles_per_cell is still unset
+    return scene.validate().with_quality(quality)
 
 
 def _output(tmp):
@@ -327,7 +353,7 @@ def run_key(case: Case, over: dict) -> tuple:
 
 def warm_up(case: Case, tmp):
     """Compile or load every kernel the case launches (untimed): a few steps at its smallest size."""
-    sim = Simulation(case.scene({"quality": "production"}, min(case.quick_levels), tmp), "cpu")
+    sim = Simulation(build_scene(case, {"resolution": min(case.quick_levels)}, tmp), "cpu")
     for _ in range(3):
         sim.step(sim.stable_dt())
 
@@ -379,34 +405,60 @@ def value_label(setting, value):
     return str(value)
 
 
+def batch_lines(meta) -> list[str]:
+    """Markdown items naming each run (batch) whose rows are in the tables."""
+    out = []
+    for i, b in enumerate(meta["batches"]):
+        timed = (f"each timed {b['repeat']}×, the fastest kept" if "repeat_under_s" not in b else
+                 f"each timed {b['repeat']}× (once if over {b['repeat_under_s']:g} s), the fastest kept")
+        out.append(f"- batch {i}: {b['date']} on {b['device']}; warp {b['warp']}, python {b['python']}; code "
+                   f"{b['code']}; `{b['command']}` ({meta['mode']} mode; measured {b.get('only', 'everything')}; "
+                   f"{b['runs']} runs, {timed}; {b['total_minutes']:.1f} min in all, warm-up and set-up "
+                   f"included; summed wall / CPU time {b['contention']:.2f})")
+        same = b.get("rerun_same_settings")
+        if same and same["rows"]:
+            change = same["max_abs_error_change"]
+            out.append(f"  - the {same['rows']} rows it re-measured at unchanged settings " + (
+                "reproduced the errors they replaced exactly" if change == 0 else
+                f"moved their errors by up to {change:.2g} from those they replaced (the code changed between)"))
+    return out
+
+
 def markdown(meta, rows, orders, noise) -> str:
-    out = [f"# Accuracy against time: reference cases (2D, and one 3D check) on {meta['device']}", "",
-           f"- date: {meta['date']}; warp {meta['warp']}, python {meta['python']}; code {meta['code']}",
-           f"- command: `{meta['command']}` ({meta['mode']} mode; {meta['runs']} runs, "
-           f"{meta['total_minutes']:.1f} min in all, warm-up and set-up included)",
+    devices = ", ".join(dict.fromkeys(b["device"] for b in meta["batches"]))
+    out = [f"# Accuracy against time: reference cases (2D, and one 3D check) on {devices}", "",
+           *batch_lines(meta),
            f"- production defaults: {meta['production']}; every setting varied alone around them at each "
            "case's default resolution (marked **bold**)",
            "- cost: `wall_s`, seconds of the simulation loop only (kernels compiled beforehand; set-up and "
            "measurements excluded). The 2 CPU cores are shared with other work, so single timings carry "
-           "tens of % of noise; compare ratios within this one run. `cpu_s` is the process time of the same "
-           "loop (Warp's CPU kernels use one thread), less disturbed by other work; in this run the summed "
-           f"wall time was {meta['contention']:.2f}× the summed CPU time. Each run was timed "
-           f"{meta['repeat']} time(s), the fastest kept.",
+           "tens of % of noise; compare ratios within one batch. `cpu_s` is the process time of the same "
+           "loop (Warp's CPU kernels use one thread), less disturbed by other work (the batches above give "
+           "the summed wall time over the summed CPU time). Each run was timed as often as its batch says, "
+           "the fastest kept. Batches ran at different times and loads, so the `× default` column divides by "
+           "the default run of the row's own batch.",
            "- errors: see the script's docstring for each measure. `seed` rows rerun the default with other "
            "seeds: their spread is the noise floor of a measure. The rising-bubble error is against the "
            "finest run of this study (no 2D analytic terminal speed), so it measures convergence, not truth.",
+           "- grid: the `grid` column counts cells per a or per radius of the grid simulated, refined where "
+           "a preset refines it ([solver].refine; `refine` in the CSV, `dx` the spacing).",
            "- data: `accuracy_vs_time.csv` (one row per point and measure; the default run is repeated in "
-           "every sweep with the same `run_id`); plot: `accuracy_vs_time.png`.", ""]
+           "every sweep with the same `run_id`; `batch` names the run that measured it); plot: "
+           "`accuracy_vs_time.png`.", ""]
     for case in CASES.values():
         crow = [r for r in rows if r["case"] == case.key]
         if not crow:
             continue
         metrics = list(case.metrics)
         out += [f"## {case.key}", "",
-                "| setting | value | wall s | cpu s | × default (wall, cpu) | steps | particles | CG it. | "
-                + " | ".join(metrics) + " |",
-                "|---|---|---:|---:|---:|---:|---:|---:|" + "---:|" * len(metrics)]
-        d0 = next(r for r in crow if r["is_default"])
+                f"Grid: {case.unit}.", "",
+                "| setting | value | grid | batch | wall s | cpu s | × default (wall, cpu) | steps | particles | "
+                "CG it. | " + " | ".join(metrics) + " |",
+                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(metrics)]
+        d0 = {}  # the default run of each batch
+        for r in crow:
+            if r["is_default"]:
+                d0.setdefault(r["batch"], r)
         seen = []
         for r in crow:
             key = (r["setting"], r["value"], r["quality"])
@@ -423,8 +475,10 @@ def markdown(meta, rows, orders, noise) -> str:
                 label = f"{label} ({r['quality']})"
             if r["is_default"]:
                 label = f"**{label}**"
-            out.append(f"| {r['setting']} | {label} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | "
-                       f"{r['wall_s'] / d0['wall_s']:.2f}, {r['cpu_s'] / d0['cpu_s']:.2f} | "
+            d = d0.get(r["batch"])
+            ratio = f"{r['wall_s'] / d['wall_s']:.2f}, {r['cpu_s'] / d['cpu_s']:.2f}" if d else "-"
+            out.append(f"| {r['setting']} | {label} | {r['resolution']} | {r['batch']} | {r['wall_s']:.2f} | "
+                       f"{r['cpu_s']:.2f} | {ratio} | "
                        f"{r['steps']} | {r['particles']:,} | {r['cg_iterations_mean']:.1f} | " + " | ".join(errs)
                        + " |")
         out.append("")
@@ -448,11 +502,12 @@ def markdown(meta, rows, orders, noise) -> str:
 
 
 CONVERGENCE_NOTE = """\
-Reading it (written for the run recorded here; revisit if a rerun moves the numbers):
+Reading it (written for the runs recorded here; revisit if a rerun moves the numbers):
 
-- Minnaert is the one clean convergence: the frequency error falls at every refinement, at an
-  order below one (0.9 down to 0.6 between successive levels) that keeps slowing, so a few %
-  remain even at 16 cells per radius (the tests' note: the error is spatial, not temporal).
+- The Minnaert frequency no longer depends on resolution: -0.7% to -1.2% at every level from 4
+  to 16 cells per radius, inside its seed noise (1.2%). Before 100b05b (the gas takes its cells'
+  volume change) the error fell from 10% at 4 to 3.5% at 16, at an order below one: that error
+  was the gas's share of the compression going to the liquid beside it, not the grid.
 - The dam break's volume drift shrinks roughly as dx^1 from 12 to 32 cells per a (0.9 fitted over
   12-24, whose errors clear twice the seed noise; 1.4 from 12 to 32). The 8-cell run's near-zero
   drift (+0.02%) is presumably gains and losses cancelling; it falls below the noise and out of
@@ -463,83 +518,121 @@ Reading it (written for the run recorded here; revisit if a rerun moves the numb
   discretization error, so neither measure can rank settings by numerical accuracy.
 - The Laplace jump is within 1.5% from 8 cells per radius on, inside its seed noise (a range of
   1.5% over 3 seeds at 8): past 6 cells per radius, resolution no longer shows.
-- The rising bubble's speed against the 12-cell run scatters by its seed noise (3.5%) at every
-  level from 4 cells per radius: the 2D bubble's wake and break-up make the speed chaotic, and no
-  order can be read from it.
+- The rising bubble's speed against the 12-cell run scatters by up to twice its seed noise (4.3%)
+  at every level from 4 cells per radius (-8.9% at 4, -0.1% at 6, -5.7% at 8): the 2D bubble's
+  wake and break-up make the speed chaotic, and no order can be read from it.
 """
 
 
 PRESETS_NOTE = """\
-How the values were chosen (warp_mpm_bubbles/quality.py), from the one-at-a-time sweeps in
-accuracy_vs_time.md. Production was left as it was (the test suite is calibrated on it); revisit
-these notes if a rerun moves the numbers.
+What the presets buy (the table above; written for the runs recorded here, revisit if a rerun
+moves the numbers). Reference now simulates a grid twice as fine along each axis (refine = 2),
+on top of cfl 0.25 and cg_tolerance 1e-6. The gas cases were measured at 277e88d, after the
+gas volume change (100b05b) moved them; the others at ef88534, whose production runs of the
+Laplace drop and the 2D dam break gave the same errors to every digit at 277e88d. Means over 3
+seeds, production's first:
+
+- Reference is clearly more accurate on two measures: the 2D dam break's volume drift (0.10%
+  against 0.42%; seed ranges 0.29% and 0.15%) and the 3D front position (0.028 a against 0.034
+  a; ranges 0.002 and 0.003 a).
+- Within the seed noise: the rising bubble (2.5% against 6.5% of the 12-cell run, ranges 2.5%
+  and 4.3%; preview gets 3.0%), the 2D front position (0.027 a against 0.029 a, range 0.0035 a),
+  the 3D volume drift (0.42% against 0.46%) and the Minnaert frequency (1.5% both, range 1.2%:
+  since the gas takes its cells' volume change, 100b05b, the error sits at 0.7-1.2% at every
+  resolution from 4 to 16 cells per radius).
+- Worse: the Laplace jump (2.0% against 0.5%, ranges 1.2% and 1.5%, all three seeds negative;
+  the resolution sweep's 16-cell run shows the same -1.5%), and the front speed against Martin &
+  Moyce (2D 5.3% against 4.4%, 3D 5.0% against 2.7%), which moves away from the experiment as
+  the grid is refined in the sweep too: it measures the model against the experiment.
+- The refined runs reproduce production at half the cell_size where cfl does not set the step
+  (Minnaert -1.18% both, Laplace -1.40% against -1.47%): refine is resolution, nothing else.
+- Cost, CPU seconds against production in the same batch: in 2D 4× the cells, and 3.9× in all
+  for Minnaert (the same 128 steps, set by the sampling interval), 6.2× for the Laplace drop
+  (2.5× the steps, the capillary limit), 10× for the dam break and 11× for the rising bubble
+  (3.7-3.8× the steps: the finer grid's CFL limit and cfl 0.25); in 3D 8× the cells and 3.6× the
+  steps, 26× (113 s against 4.3 s a run). Preview costs about half of production; the dam
+  break's volume drift rises (2D 0.90% against 0.42%, 3D 0.71% against 0.46%) and its 3D
+  front's RMS by a fifth, the other errors stay within their seed noise.
+
+How the governed values were chosen (warp_mpm_bubbles/quality.py), from the one-at-a-time sweeps
+in accuracy_vs_time.md. Production was left as it was (the test suite is calibrated on it).
 
 - cg_tolerance moved no error beyond its seed noise anywhere between 1e-3 and 1e-7: the dam break,
   Laplace and Minnaert errors agree to 3-4 digits, the rising bubble's move within its seed range.
   Each decade costs CG iterations (dam break: 3.1 per solve at 1e-3, 4.8 at 1e-5, 6.4 at 1e-7).
   Preview takes 1e-3; reference 1e-6, a decade below production as a margin (1e-7 bought nothing).
 - cfl sets the step only in the free-surface and rising-bubble runs (the capillary limit and the
-  sampling interval set it in the Laplace and Minnaert runs, so there the presets differ only in
-  the solver tolerance). Doubling it to 1.0 halves the steps; the 2D dam break's front is unchanged
-  within the seed noise and its volume drift about doubles (0.9%, still under the tests' 1%); in 3D
-  the front's RMS rises by a fifth (0.041 a against 0.034 a). At 1.5 the 2D front moves too (0.041
-  a). Halving it to 0.25 lowers the volume drift (2D 0.16% against 0.42%, 3D 0.35% against 0.46%,
-  means over 3 seeds) and the 3D front's RMS: the one error the governed settings clearly improve.
-  Hence preview 1.0 and reference 0.25.
+  sampling interval set it in the Laplace and Minnaert runs). Doubling it to 1.0 halves the steps;
+  the 2D dam break's front is unchanged within the seed noise and its volume drift about doubles
+  (0.9%, still under the tests' 1%); in 3D the front's RMS rises by a fifth (0.041 a against 0.034
+  a). At 1.5 the 2D front moves too (0.041 a). Halving it to 0.25 lowers the volume drift (2D
+  0.16% against 0.42%, 3D 0.35% against 0.46%, means over 3 seeds) and the 3D front's RMS. Hence
+  preview 1.0 and reference 0.25.
 - More particles per cell did not lower any error beyond its seed noise, except the dam break's
-  front speed against the experiment, a measure that moves away from the experiment as the grid is
-  refined and so gauges no numerical error; they raised the dam break's volume loss (2D: 1.0% at 9
-  and 1.2% at 16 per cell against 0.5% at 4; 3D: 0.70% at 27 against 0.46% at 8) and the 3D
-  front's RMS. 2 per cell (2D) saved little time on these grids, where the pressure solve and
-  kernel launches dominate (Minnaert 0.74x the CPU time, the others none), and raised the drift
-  (+1.5%) and the Laplace drop's spurious currents (46% of the capillary speed against 19%).
-  (Minnaert at 2 per cell came out closest to the formula, -2.3%, against -5.5% to -6.2% from 4
-  to 16: an outlier of a flat trend, not a gain we trust.) So every preset keeps 4 per cell in 2D
-  and 8 in 3D, and the reference preset dropped its 9 / 27.
-- Resolution is the strongest lever (see the convergence table) but stays the scene's cell_size:
-  on the Laplace and Minnaert cases no governed setting changes the error, and a finer grid is
-  the only way to a more accurate answer.
+  front speed against the experiment, a measure that gauges no numerical error; they raised the
+  dam break's volume loss (2D: 1.0% at 9 and 1.2% at 16 per cell against 0.5% at 4; 3D: 0.70% at
+  27 against 0.46% at 8) and the 3D front's RMS. 2 per cell (2D) saved little or no time on these
+  grids, where the pressure solve and kernel launches dominate (0.89× the CPU time at best), and
+  raised the dam break's drift (+1.5%), the Laplace drop's spurious currents (46% of the
+  capillary speed against 19%) and moved the Minnaert frequency to +1.6%. So every preset keeps
+  4 per cell in 2D and 8 in 3D.
+- Resolution (the convergence table) is the lever that lowers the 2D volume drift, and refine = 2
+  is how reference takes it. It also lowers the 3D front's RMS (0.029 a at seed 0, against 0.031
+  a with cfl 0.25 alone at 12 cells per a) but not the 3D drift (0.40% at seed 0, against 0.36%
+  with cfl 0.25 alone); on the other measures it buys nothing beyond the seed noise.
 """
 
 
 def presets_markdown(meta, rows) -> str:
+    prows = [r for r in rows if r["setting"] in ("quality", "seed")]
+    used = sorted({r["batch"] for r in prows})
+    seeds = sorted({r["seed"] for r in prows})
+    runs = "; ".join(
+        f"{', '.join(dict.fromkeys(r['case'] for r in prows if r['batch'] == i))} on {b['device']}, {b['date']}, "
+        f"warp {b['warp']}, code {b['code']}, by `{b['command']}` ({b['total_minutes']:.0f} min, batch {i})"
+        for i, b in ((i, meta["batches"][i]) for i in used))
     out = ["# Quality presets: error and cost", "",
-           f"Measured on {meta['device']}, {meta['date']}, warp {meta['warp']}, by `{meta['command']}` "
-           f"({meta['total_minutes']:.0f} min; the `quality` and `seed` rows of `accuracy_vs_time.md`, each case "
-           "at its default resolution, 2D). Each preset ran with seeds 0, 1 and 2: the error columns give seed 0, "
-           "the mean magnitude over the three seeds and their range (the noise floor). Cost is the median over "
-           "the three seeds of the simulation loop's seconds (each the fastest of the repeats); the 2 CPU cores "
-           "were shared with other work, so compare the ratios, which come from this one run.",
-           "", "| preset | particles per cell (2D, 3D) | cfl | cg_tolerance |", "|---|---|---:|---:|"]
+           f"Measured for {runs}: the `quality` and `seed` rows of `accuracy_vs_time.md`, each case at its "
+           "default resolution, the preset applied with Scene.with_quality as `--quality` applies it (so "
+           "reference also refines the grid: `grid` counts the cells simulated per a or per radius). Each preset "
+           f"ran with seeds {', '.join(map(str, seeds))}: the error columns give seed 0, the mean magnitude over "
+           "the seeds and their range (the noise floor). Cost is the median over the seeds of the simulation loop's "
+           "seconds (each the fastest of its timings); the 2 CPU cores were shared with other work, so compare "
+           "the ratios, each taken within one run (batch).",
+           "", "| preset | particles per cell (2D, 3D) | cfl | cg_tolerance | refine (grid cells per cell_size) |",
+           "|---|---|---:|---:|---:|"]
     for q, v in PRESETS.items():
         ppc = v["particles_per_cell"]
-        out.append(f"| {q} | {ppc[0]}, {ppc[1]} | {v['cfl']} | {v['cg_tolerance']:.0e} |")
-    out += ["", "| case: measure | preset | wall s | cpu s | × production (wall, cpu) | error (seed 0) | "
-            "mean \\|error\\| (3 seeds) | seed range |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+        out.append(f"| {q} | {ppc[0]}, {ppc[1]} | {v['cfl']} | {v['cg_tolerance']:.0e} | {v.get('refine', 1)} |")
+    out += ["", "| case: measure | preset | grid | wall s | cpu s | × production (wall, cpu) | error (seed 0) | "
+            f"mean \\|error\\| ({len(seeds)} seeds) | seed range |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
     ratios = {q: [] for q in PRESETS}
     for case in CASES.values():
         for metric in case.metrics:
-            cost, stats = {}, {}
+            sel = {}
             for q in PRESETS:
-                seeds = [r for r in rows if r["case"] == case.key and r["metric"] == metric
+                seeds = [r for r in prows if r["case"] == case.key and r["metric"] == metric
                          and r["setting"] == "seed" and r["quality"] == q]
-                if not seeds:
-                    seeds = [r for r in rows if r["case"] == case.key and r["metric"] == metric
-                             and r["setting"] == "quality" and r["value"] == q]
-                if not seeds:
-                    continue
-                cost[q] = tuple(float(np.median([r[k] for r in seeds])) for k in ("wall_s", "cpu_s"))
+                seeds = seeds or [r for r in prows if r["case"] == case.key and r["metric"] == metric
+                                  and r["setting"] == "quality" and r["value"] == q]
+                if seeds:
+                    sel[q] = seeds
+            for q, seeds in sel.items():
+                wall, cpu = (float(np.median([r[k] for r in seeds])) for k in ("wall_s", "cpu_s"))
                 e = [r["error_signed"] for r in seeds]
-                stats[q] = (next(r["error_signed"] for r in seeds if r["seed"] == 0), float(np.mean(np.abs(e))),
-                            float(np.ptp(e)) if len(e) > 1 else np.nan)
-            for q in cost:
-                rw, rc = (cost[q][0] / cost["production"][0], cost[q][1] / cost["production"][1]) \
-                    if "production" in cost else (np.nan, np.nan)
-                if metric == next(iter(case.metrics)):
+                base = sel.get("production")
+                if base and {r["batch"] for r in base} == {r["batch"] for r in seeds}:
+                    rw = wall / float(np.median([r["wall_s"] for r in base]))
+                    rc = cpu / float(np.median([r["cpu_s"] for r in base]))
+                else:  # timings of different runs: no ratio
+                    rw = rc = np.nan
+                if metric == next(iter(case.metrics)) and np.isfinite(rc):
                     ratios[q].append(rc)
-                out.append(f"| {case.key}: {metric} | {q} | {cost[q][0]:.2f} | {cost[q][1]:.2f} | {fmt(rw, 2)}, "
-                           f"{fmt(rc, 2)} | {fmt(stats[q][0])} | {fmt(stats[q][1])} | {fmt(stats[q][2], 2)} |")
-    out += ["", "Cost relative to production, geometric mean over the cases (cpu seconds): " + ", ".join(
+                grid = f"{seeds[0]['resolution']} {case.unit}"
+                out.append(f"| {case.key}: {metric} | {q} | {grid} | {wall:.2f} | {cpu:.2f} | {fmt(rw, 2)}, "
+                           f"{fmt(rc, 2)} | {fmt(next(r['error_signed'] for r in seeds if r['seed'] == 0))} | "
+                           f"{fmt(float(np.mean(np.abs(e))))} | {fmt(float(np.ptp(e)) if len(e) > 1 else np.nan, 2)} |")
+    out += ["", "CPU time relative to production, geometric mean over the cases: " + ", ".join(
         f"{q} {math.exp(np.mean(np.log(v))):.2f}×" for q, v in ratios.items() if v and all(x > 0 for x in v)) + ".",
         "", PRESETS_NOTE]
     return "\n".join(out) + "\n"
@@ -573,7 +666,8 @@ def plot(path, rows, title):
                     ms=8 if setting == "quality" else 5, label=setting, alpha=0.85)
             for r in pts:
                 if setting != "seed":
-                    ax.annotate(value_label(setting, r["value"]), (r["wall_s"], r["error"]), fontsize=6,
+                    label = value_label(setting, r["value"]) + (f" ×{r['refine']} grid" if r["refine"] > 1 else "")
+                    ax.annotate(label, (r["wall_s"], r["error"]), fontsize=6,
                                 xytext=(3, 3), textcoords="offset points", color=color)
         d = next((r for r in sel if r["is_default"] and np.isfinite(r["error"]) and r["error"] > 0), None)
         if d:
@@ -617,14 +711,49 @@ def describe_code() -> str:
 
 
 # ------------------------------------------------------------------------------------- main
+SETTINGS = ("resolution", *SWEEPS_FULL)  # the sweeps, in the order the tables list them
+ALIASES = {"presets": ("quality", "seed"), "all": SETTINGS}
+
+
+def load_saved(out_dir: Path) -> tuple[dict, list[dict]]:
+    """The saved measurements; a file from before batches (one run) becomes batch 0 at refine 1."""
+    saved = json.loads((out_dir / "accuracy_vs_time.json").read_text())
+    meta, rows = saved["meta"], saved["rows"]
+    if "batches" not in meta:
+        meta = {"mode": meta.pop("mode"), "production": meta.pop("production"), "batches": [meta]}
+        for r in rows:
+            r.setdefault("batch", 0)
+            r.setdefault("refine", 1)
+    return meta, rows
+
+
+def fine_reference(case: Case, levels, results: dict, saved_rows: list[dict]) -> dict:
+    """{metric: measured} of the self-referenced case's finest production run: this run's, or the saved one."""
+    key = run_key(case, {"quality": "production", "resolution": max(levels)})
+    if key in results:
+        return {m: d["measured"] for m, d in results[key]["metrics"].items()}
+    fine = [r for r in saved_rows if r["case"] == case.key and r["setting"] == "resolution"
+            and r["value"] == max(levels)]
+    if not fine:
+        raise SystemExit(f"{case.key}: its reference, the {max(levels)}-{case.unit} production run, is neither in "
+                         "this run nor in the saved JSON; rerun with --only resolution,... as well")
+    return {r["metric"]: r["measured"] for r in fine}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="smoke run: two coarse levels, two values per setting")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated subset of {', '.join(CASES)}")
+    ap.add_argument("--only", default=None,
+                    help=f"rerun only these sweeps ({', '.join(SETTINGS)}; 'presets' = quality,seed; 'all') of "
+                         "the --cases and merge them into <out-dir>/accuracy_vs_time.json, keeping every other "
+                         "saved row")
     ap.add_argument("--out-dir", default=None, help="where to write (default docs/, or "
                                                     "benchmarks/results/accuracy_quick/ with --quick)")
     ap.add_argument("--repeat", type=int, default=None,
                     help="time each run this many times and keep the fastest (default 2, or 1 with --quick)")
+    ap.add_argument("--repeat-under", type=float, default=60.0,
+                    help="time only runs whose first pass took less than this many wall seconds again (default 60)")
     ap.add_argument("--no-plot", action="store_true", help="skip the PNG (no matplotlib needed)")
     ap.add_argument("--render-only", action="store_true",
                     help="rewrite the CSV, Markdown and plot from <out-dir>/accuracy_vs_time.json without running")
@@ -634,13 +763,22 @@ def main(argv=None) -> int:
     unknown = [k for k in keys if k not in CASES]
     if unknown or not keys:
         ap.error(f"unknown case(s) {unknown}; choose from {', '.join(CASES)}")
+    only = None
+    if args.only is not None:
+        only = [s for w in args.only.split(",") if w.strip() for s in ALIASES.get(w.strip(), (w.strip(),))]
+        if not only or any(s not in SETTINGS for s in only):
+            ap.error(f"--only {args.only}: choose from {', '.join(SETTINGS)} or {', '.join(ALIASES)}")
     out_dir = Path(args.out_dir) if args.out_dir else (
         ROOT / "benchmarks" / "results" / "accuracy_quick" if args.quick else ROOT / "docs")
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.render_only:
-        saved = json.loads((out_dir / "accuracy_vs_time.json").read_text())
-        render(out_dir, saved["meta"], saved["rows"], args)
+        meta, rows = load_saved(out_dir)
+        render(out_dir, meta, rows, args)
         return 0
+    mode = "quick" if args.quick else "full"
+    saved_meta, saved_rows = load_saved(out_dir) if only else ({"batches": []}, [])
+    if only and saved_meta.get("mode") != mode:
+        ap.error(f"--only merges into the saved {saved_meta.get('mode')} run: run it in that mode")
 
     start = time.perf_counter()
     wp.config.quiet = True
@@ -648,20 +786,21 @@ def main(argv=None) -> int:
     dev = wp.get_device("cpu")
     production = {k: PRESETS["production"][k] for k in ("particles_per_cell", "cfl", "cg_tolerance")}
     cmd = shlex.join(["python", "benchmarks/accuracy_vs_time.py", *(sys.argv[1:] if argv is None else argv)])
-    meta = {"date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "warp": wp.config.version, "python": platform.python_version(), "device": describe_device(dev),
-            "code": describe_code(),
-            "command": cmd, "mode": "quick" if args.quick else "full", "repeat": args.repeat,
-            "production": ", ".join(f"{k} = {v}" for k, v in production.items()) + ", interface = sharp"}
+    meta = {"mode": mode, "production": ", ".join(f"{k} = {v}" for k, v in production.items()) + ", interface = sharp",
+            "batches": saved_meta["batches"]}
+    batch = {"date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+             "warp": wp.config.version, "python": platform.python_version(), "device": describe_device(dev),
+             "code": describe_code(), "command": cmd, "repeat": args.repeat, "repeat_under_s": args.repeat_under,
+             "only": f"the {', '.join(only)} sweeps of {', '.join(keys)}" if only else "everything"}
 
     todo = []  # (case, setting, value, overrides)
     for k in keys:
-        todo += [(CASES[k], *p) for p in plan(CASES[k], args.quick)]
+        todo += [(CASES[k], *p) for p in plan(CASES[k], args.quick) if only is None or p[0] in only]
     unique = {}
     for case, _, _, over in todo:
         unique.setdefault(run_key(case, over), (case, over))
-    print(f"{len(todo)} points, {len(unique)} distinct runs over {len(keys)} case(s) ({meta['mode']} mode)",
-          file=sys.stderr, flush=True)
+    print(f"{len(todo)} points, {len(unique)} distinct runs over {len(keys)} case(s) ({mode} mode"
+          f"{', only ' + ', '.join(only) if only else ''})", file=sys.stderr, flush=True)
 
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -669,20 +808,23 @@ def main(argv=None) -> int:
             warm_up(CASES[k], tmp)
         for rep in range(args.repeat):  # repeats re-time every run in a later pass: contention bursts differ
             for i, (key, (case, over)) in enumerate(unique.items(), 1):
-                s = {k: v for k, v in over.items() if k != "resolution"}
+                if rep and results[key]["wall"] >= args.repeat_under:
+                    continue
                 clock = Clock()
-                sim = Simulation(case.scene(s, over["resolution"], tmp), "cpu")
+                sim = Simulation(build_scene(case, over, tmp), "cpu")
                 metrics = case.measure(sim, clock)
                 if rep:  # the CPU run is deterministic: a repeat only re-measures the time
                     r = results[key]
                     r["wall"], r["cpu"] = min(r["wall"], clock.wall), min(r["cpu"], clock.cpu)
+                    r["timed"] += 1
                 else:
                     sol = sim.scene.solver
                     results[key] = dict(metrics=metrics, wall=clock.wall, cpu=clock.cpu, particles=sim.num_particles,
                                         cells=int(np.prod(sim.grid.interior)), steps=sim.stats.steps,
-                                        dx=sim.grid.dx, cg=sim.stats.cg_iterations / max(sim.stats.cg_solves, 1),
+                                        dx=sim.grid.dx, refine=sol.refine,
+                                        cg=sim.stats.cg_iterations / max(sim.stats.cg_solves, 1),
                                         ppc=sol.particles_per_cell, cfl=sol.cfl, tol=sol.cg_tolerance,
-                                        interface=sol.interface, seed=sol.seed, quality=sol.quality)
+                                        interface=sol.interface, seed=sol.seed, quality=sol.quality, timed=1)
                 first = next(iter(metrics.values()))
                 shown = first["error_signed"] if np.isfinite(first["error_signed"]) else first["measured"]
                 what = "error" if np.isfinite(first["error_signed"]) else "value"
@@ -694,16 +836,17 @@ def main(argv=None) -> int:
 
     # rising bubble: the reference is the finest production run of the study
     for case in (CASES[k] for k in keys if CASES[k].self_referenced):
-        levels = case.quick_levels if args.quick else case.levels
-        fine = results[run_key(case, {"quality": "production", "resolution": max(levels)})]
+        fine = fine_reference(case, case.quick_levels if args.quick else case.levels, results, saved_rows)
         for key, r in results.items():
             if key[0] == case.key:
                 for m, d in r["metrics"].items():
-                    d["reference"] = fine["metrics"][m]["measured"]
+                    d["reference"] = fine[m]
                     d["error_signed"] = d["measured"] / d["reference"] - 1.0
 
     default_key = {k: run_key(CASES[k], {"quality": "production", "resolution": CASES[k].quick_levels[0]
                                          if args.quick else CASES[k].default}) for k in keys}
+    b = len(meta["batches"])
+    first_id = 1 + max((r["run_id"] for r in saved_rows), default=-1)
     rows = []
     for case, setting, value, over in todo:
         key = run_key(case, over)
@@ -711,24 +854,42 @@ def main(argv=None) -> int:
         for metric, d in r["metrics"].items():
             rows.append({"case": case.key, "metric": metric, "setting": setting, "value": value,
                          "is_default": int(key == default_key[case.key]),
-                         "run_id": list(results).index(key), "quality": r["quality"],
-                         "resolution": over["resolution"], "resolution_unit": case.unit, "dx": r["dx"],
-                         "particles_per_cell": r["ppc"], "cfl": r["cfl"], "cg_tolerance": r["tol"],
-                         "interface": r["interface"], "seed": r["seed"], "particles": r["particles"],
-                         "cells": r["cells"], "steps": r["steps"], "cg_iterations_mean": r["cg"],
-                         "wall_s": r["wall"], "cpu_s": r["cpu"], "measured": float(d["measured"]),
-                         "reference": float(d["reference"]), "error": abs(float(d["error_signed"])),
-                         "error_signed": float(d["error_signed"]), "error_kind": d["error_kind"],
-                         "note": d["note"]})
+                         "run_id": first_id + list(results).index(key), "batch": b, "quality": r["quality"],
+                         "resolution": over["resolution"] * r["refine"], "resolution_unit": case.unit,
+                         "dx": r["dx"], "refine": r["refine"], "particles_per_cell": r["ppc"], "cfl": r["cfl"],
+                         "cg_tolerance": r["tol"], "interface": r["interface"], "seed": r["seed"],
+                         "particles": r["particles"], "cells": r["cells"], "steps": r["steps"],
+                         "cg_iterations_mean": r["cg"], "wall_s": r["wall"], "cpu_s": r["cpu"],
+                         "measured": float(d["measured"]), "reference": float(d["reference"]),
+                         "error": abs(float(d["error_signed"])), "error_signed": float(d["error_signed"]),
+                         "error_kind": d["error_kind"], "note": d["note"]})
 
-    meta["runs"] = len(unique)
-    meta["contention"] = sum(r["wall"] for r in results.values()) / max(sum(r["cpu"] for r in results.values()), 1e-9)
-    meta["total_minutes"] = (time.perf_counter() - start) / 60
+    if only:  # the replaced rows go; where a replaced run had the same settings, did its error move?
+        replaced = [r for r in saved_rows if r["case"] in keys and r["setting"] in only]
+        same = [(o, n) for o in replaced for n in rows
+                if all(o[k] == n[k] for k in ("case", "metric", "setting", "value", "quality", "seed", "dx",
+                                              "particles_per_cell", "cfl", "cg_tolerance", "interface"))]
+        change = max((abs(n["error_signed"] - o["error_signed"]) for o, n in same), default=None)
+        batch["rerun_same_settings"] = {"rows": len(same), "max_abs_error_change": change}
+        kept = [r for r in saved_rows if not (r["case"] in keys and r["setting"] in only)]
+        order = {(c, s): i for i, (c, s) in enumerate((c, s) for c in CASES for s in SETTINGS)}
+        rows = sorted(kept + rows, key=lambda r: order[(r["case"], r["setting"])])  # stable: sweep order kept
+    batch["runs"] = len(unique)
+    batch["timed_runs"] = sum(r["timed"] for r in results.values())
+    batch["contention"] = sum(r["wall"] for r in results.values()) / max(sum(r["cpu"] for r in results.values()), 1e-9)
+    batch["total_minutes"] = (time.perf_counter() - start) / 60
+    meta["batches"].append(batch)
     (out_dir / "accuracy_vs_time.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n")
     print(f"wrote {out_dir}/accuracy_vs_time.json (the measurements; --render-only rewrites the rest from it)",
           file=sys.stderr)
     render(out_dir, meta, rows, args)
     return 0
+
+
+def batch_note(rows) -> str:
+    """For a plot title: say so when the points come from runs timed at different loads."""
+    n = len({r["batch"] for r in rows})
+    return f"; points from {n} runs (batches) timed at different loads, see the .md" if n > 1 else ""
 
 
 def render(out_dir: Path, meta: dict, rows: list[dict], args):
@@ -760,13 +921,14 @@ def render(out_dir: Path, meta: dict, rows: list[dict], args):
     (out_dir / "presets.md").write_text(presets_markdown(meta, rows))
     if not args.no_plot:
         try:
-            plot(out_dir / "accuracy_vs_time.png", rows, f"error against wall seconds, {meta['device']}")
+            devices = ", ".join(dict.fromkeys(b["device"] for b in meta["batches"]))
+            plot(out_dir / "accuracy_vs_time.png", rows, f"error against wall seconds, {devices}{batch_note(rows)}")
         except ImportError:
             args.no_plot = True
             print("matplotlib not installed (the [plots] extra): no PNG written", file=sys.stderr)
     print(text)
-    print(f"wrote {out_dir}/accuracy_vs_time.{{csv,md{'' if args.no_plot else ',png'}}} and presets.md "
-          f"from the {meta['mode']} run of {meta['date']} ({meta['total_minutes']:.1f} min)", file=sys.stderr)
+    print(f"wrote {out_dir}/accuracy_vs_time.{{csv,md{'' if args.no_plot else ',png'}}} and presets.md from the "
+          f"{meta['mode']} run(s) of {', '.join(b['date'] for b in meta['batches'])}", file=sys.stderr)
 
 
 if __name__ == "__main__":

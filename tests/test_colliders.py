@@ -126,3 +126,24 @@ def test_colliders_are_written_to_the_usd_stage(tmp_path):
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Colliders/glass_1"))
     lo, hi = mesh.GetExtentAttr().Get()
     assert (lo[0], hi[0], hi[1]) == pytest.approx((-0.1, 0.1, 0.3), abs=1e-6)
+
+
+def test_3d_ball_and_glass_keep_particles_out(tmp_path):
+    # The 3D paths: a sphere's distance, and the glass revolved about y (a cup, not a U prism).
+    dx = 0.025
+    glass = Collider("glass", center=(0.15, 0.0, 0.2), radius=0.1, height=0.2, wall_thickness=0.025)
+    ball = Collider("sphere", center=(0.3, 0.3, 0.2), radius=0.05, velocity=(0.0, -1.5, 0.0), stop=0.15)
+    scene = Scene(domain=Domain(size=(0.4, 0.4, 0.4), cell_size=dx, walls="no_slip"),
+                  materials={"water": Material("water")},
+                  shapes=[Box("water", (0.0, 0.0, 0.0), (0.4, 0.15, 0.4))], colliders=[glass, ball],
+                  output=Output(path=str(tmp_path / "c3.usdc"), fps=30))
+    sim = Simulation(scene, "cpu")
+    for _ in range(6):
+        sim.advance_frame()
+        x = sim.particles_numpy()["positions"].astype(np.float64)
+        centre = np.array(ball.center_at(sim.time))
+        assert np.linalg.norm(x - centre, axis=1).min() >= 0.05 - 1e-6
+        r = np.hypot(x[:, 0] - 0.15, x[:, 2] - 0.2)
+        in_wall = (r < 0.1) & (x[:, 1] < 0.2) & ~((r < 0.075) & (x[:, 1] > 0.025))
+        assert not in_wall.any()
+    assert np.isfinite(sim.particles_numpy()["velocities"]).all()

@@ -374,36 +374,6 @@ def pressure_diagonal_and_rhs(
 
 
 @wp.kernel
-def gas_volume_rate(
-    types: wp.array3d(dtype=wp.int32),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    target_div: wp.array3d(dtype=float),
-    dx: float,
-    dim: int,
-    rate: wp.array3d(dtype=float),
-):
-    """The volume change per second that belongs to the gas in each cell, per unit gas volume.
-
-    The liquid is incompressible, so a cell's divergence (beyond what the volume correction asked
-    of its liquid) is its gas expanding or compressing. Interpolating the divergence to every
-    particle instead handed most of it to the liquid particles beside the interface, whose J
-    nobody reads, and the gas's J lagged (tests/test_gas.py's collapse measured it).
-    """
-    i, j, k = wp.tid()
-    rate[i, j, k] = 0.0
-    vg = gas_volume[i, j, k]
-    if types[i, j, k] != FLUID or vg <= 0.0:
-        return
-    div = (vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]) / dx
-    if dim == 3:
-        div += (vel_w[i, j, k + 1] - vel_w[i, j, k]) / dx
-    rate[i, j, k] = (div - target_div[i, j, k]) * dx * dx * dx / vg
-
-
-@wp.kernel
 def subtract_pressure_gradient(
     types: wp.array3d(dtype=wp.int32),
     pressure: wp.array3d(dtype=float),

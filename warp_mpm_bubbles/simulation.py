@@ -32,7 +32,9 @@ from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .scene import INTERFACES
 from .seeding import seed_particles
 from .timing import StageTimer
-from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g, p2g_gas, update_gas_J
+from .transfer_kernels import (
+    GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, gas_volume_rate, p2g, p2g_gas, update_gas_J,
+)
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tension.py measures it)
@@ -345,7 +347,7 @@ class Simulation:
             # published rule stays: J follows the interpolated divergence.
             gas_J_from_cells = int(self.has_gas and self._interface == INTERFACE_SHARP)
             if gas_J_from_cells:
-                self._launch(gk.gas_volume_rate, g.cells, [self.types, *self.vel, self.gas_volume, self.target_div,
+                self._launch(gas_volume_rate, g.cells, [self.types, *self.vel, self.gas_volume, self.target_div,
                                                            g.dx, g.dim, self.gas_rate])
                 self._launch(update_gas_J, self.num_particles,
                              [self.x, self.phase, self.active, self.gas_rate, self._origin, g.dx, g.dim,

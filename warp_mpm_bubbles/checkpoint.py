@@ -55,10 +55,7 @@ def load_checkpoint(sim, path) -> None:
         if str(data["fingerprint"]) != _fingerprint(sim.scene):
             raise SimulationError(f"{path} was written by a different scene (domain, materials, shapes or "
                                   f"solver settings changed); run without --resume to start over")
-        n = data["particle_x"].shape[0]
-        if n < sim.num_particles:
-            raise SimulationError(f"{path} holds {n} particles, the scene seeds {sim.num_particles}; run without "
-                                  f"--resume to start over")
+        n = data["particle_x"].shape[0]  # emitters add particles, compaction removes retired ones
         sim._reserve(n)
         sim.num_particles = n
         for name in sim.particle_fields:

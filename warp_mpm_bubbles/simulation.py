@@ -42,7 +42,8 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 # The per-particle arrays every scene has (effects add theirs with Simulation.add_particle_field).
 PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vol0": float, "J": float,
                    "phase": wp.int32, "active": wp.int32, "material": wp.int32, "gas_law": wp.int32,
-                   "gas_gamma": float}
+                   "gas_gamma": float, "ids": wp.int64}
+COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 
 
 @dataclass
@@ -97,6 +98,7 @@ class Simulation:
             setattr(self, name, wp.zeros(0, dtype=dtype, device=self.device))
         self.vented_mass = wp.zeros(1, dtype=wp.float64, device=self.device)
         self.host_state: dict[str, np.ndarray] = {}  # small per-effect state that checkpoints keep
+        self.host_state["next_id"] = np.zeros(1, np.int64)
         if self.colliders:  # no particle starts inside a solid
             keep = ~self.colliders.inside(self, seeds["positions"])
             seeds = {name: values[keep] for name, values in seeds.items()}
@@ -105,7 +107,8 @@ class Simulation:
 
     def add_particles(self, positions, velocities, material, volume, gauge_pressure=None) -> slice:
         """Append particles (numpy arrays; material: indices into scene.materials; volume: current,
-        m^3) and return their index range. Arrays grow geometrically; ids are the indices."""
+        m^3) and return their index range. Arrays grow geometrically; each particle gets the next id,
+        which it keeps for good (a renderer's motion blur follows it) while compaction moves it."""
         n = len(positions)
         materials = list(self.scene.materials.values())
         per_material = lambda f, dtype: np.array([f(m) for m in materials], dtype=dtype)[material]  # noqa: E731
@@ -122,7 +125,9 @@ class Simulation:
             "active": np.ones(n, np.int32), "material": np.asarray(material, np.int32),
             "gas_law": per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32),
             "gas_gamma": per_material(lambda m: m.gamma, np.float32),
+            "ids": self.host_state["next_id"][0] + np.arange(n, dtype=np.int64),
         }
+        self.host_state["next_id"] = self.host_state["next_id"] + n
         start = self.num_particles
         self._reserve(start + n)
         for name, dtype in self.particle_fields.items():
@@ -421,6 +426,25 @@ class Simulation:
     def advance_frame(self):
         self.frame += 1
         self.advance_to(self.frame * self.frame_dt)
+        self._compact()
+
+    def _compact(self):
+        """Drop retired particles (vented gas, burst foam, converted bubbles) once they are a share
+        COMPACT_RETIRED of the arrays, so launches and checkpoints do not grow with every particle
+        ever made. Survivors keep their order, so every kernel's sums run in the same order and the
+        results are the same bit for bit."""
+        n = self.num_particles
+        active = self.active.numpy()[:n]
+        keep = np.flatnonzero(active == 1)
+        if len(keep) == n or n - len(keep) < COMPACT_RETIRED * n:
+            return
+        for name, dtype in self.particle_fields.items():
+            data = getattr(self, name).numpy()[:n][keep]
+            compacted = wp.zeros(len(getattr(self, name)), dtype=dtype, device=self.device)
+            if len(keep):
+                wp.copy(compacted, wp.array(data, dtype=dtype, device=self.device), count=len(keep))
+            setattr(self, name, compacted)
+        self.num_particles = len(keep)
 
     # ------------------------------------------------------------------------------ read-out
     def particles_numpy(self, include_retired: bool = False) -> dict[str, np.ndarray]:
@@ -434,7 +458,7 @@ class Simulation:
         return {
             "positions": view["x"][keep].copy(),
             "velocities": view["v"][keep].copy(),
-            "ids": np.arange(n, dtype=np.int64)[keep],
+            "ids": self.ids.numpy()[:n][keep].copy(),
             "material": view["material"][keep].copy(),
             "J": view["J"][keep].copy(),
             "mass": view["mass"][keep].copy(),

@@ -16,7 +16,7 @@ One-way coupled: foam is 1/20 of the water's density and a thin layer, so its we
 the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically). A
 scene with foam therefore simulates its liquid and gas bit for bit as the same scene without it.
 
-Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle index): one draw
+Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle id): one draw
 per particle, the same on every run and device, independent of launch order.
 """
 
@@ -129,6 +129,7 @@ def gas_to_foam(
     active: wp.array(dtype=wp.int32),
     phase: wp.array(dtype=wp.int32),
     material: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int64),
     life: wp.array(dtype=float),
 ):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
@@ -139,7 +140,9 @@ def gas_to_foam(
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material
-    state = wp.rand_init(seed, p)  # a hash of (seed, index): no generator state to carry or checkpoint
+    # A hash of (seed, particle id): no generator state to carry or checkpoint, and the same draw
+    # wherever compaction has moved the particle.
+    state = wp.rand_init(seed, int(ids[p]))
     life[p] = -mean_life * wp.log(1.0 - wp.randf(state))  # exponential; randf is in [0, 1)
 
 
@@ -163,7 +166,7 @@ class FoamStage:
         up_axis, up_sign = sim._up
         sim._launch(gas_to_foam, sim.num_particles,
                     [sim.types, sim.ceiling, up_axis, up_sign, sim._origin, g.dx, g.dim, self.material,
-                     self.settings.lifetime, self._seed, sim.x, sim.active, sim.phase, sim.material,
+                     self.settings.lifetime, self._seed, sim.x, sim.active, sim.phase, sim.material, sim.ids,
                      sim.foam_life])
 
     def advance(self, sim, dt: float):

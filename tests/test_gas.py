@@ -27,6 +27,18 @@ def upward_crossings(t, V):
     return [t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i]) for i in range(len(x) - 1) if x[i] < 0 <= x[i + 1]]
 
 
+def breathe(scene, period):
+    """Run 3.2 periods, sampling the gas volume STEPS_PER_PERIOD times a period."""
+    sim = Simulation(scene, "cpu")
+    budget0 = sim.gas_budget()
+    times, volumes = [], []
+    while sim.time < 3.2 * period:
+        sim.advance_to(sim.time + period / STEPS_PER_PERIOD)
+        times.append(sim.time)
+        volumes.append(sim.gas_budget()["volume"])
+    return dict(sim=sim, t=np.array(times), V=np.array(volumes), budget0=budget0)
+
+
 @pytest.fixture(scope="module")
 def breathing(tmp_path_factory):
     """A bubble seeded 2% above ambient at the centre of a free liquid disc, no gravity, 3 periods."""
@@ -40,14 +52,7 @@ def breathing(tmp_path_factory):
         solver=SolverSettings(max_dt=period / STEPS_PER_PERIOD),
         output=Output(path=str(tmp_path_factory.mktemp("minnaert") / "m.usdc")),
     )
-    sim = Simulation(scene, "cpu")
-    budget0 = sim.gas_budget()
-    times, volumes = [], []
-    while sim.time < 3.2 * period:
-        sim.advance_to(sim.time + period / STEPS_PER_PERIOD)
-        times.append(sim.time)
-        volumes.append(sim.gas_budget()["volume"])
-    return dict(sim=sim, t=np.array(times), V=np.array(volumes), budget0=budget0, period=period)
+    return dict(breathe(scene, period), period=period)
 
 
 def test_bubble_breathes_at_the_2d_minnaert_frequency(breathing):
@@ -242,14 +247,7 @@ def breathing_3d(tmp_path_factory):
         solver=SolverSettings(max_dt=period / STEPS_PER_PERIOD),
         output=Output(path=str(tmp_path_factory.mktemp("minnaert3d") / "m.usdc")),
     )
-    sim = Simulation(scene, "cpu")
-    budget0 = sim.gas_budget()
-    times, volumes = [], []
-    while sim.time < 3.2 * period:
-        sim.advance_to(sim.time + period / STEPS_PER_PERIOD)
-        times.append(sim.time)
-        volumes.append(sim.gas_budget()["volume"])
-    return dict(sim=sim, t=np.array(times), V=np.array(volumes), budget0=budget0)
+    return breathe(scene, period)
 
 
 @pytest.mark.slow

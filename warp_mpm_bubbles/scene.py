@@ -92,7 +92,6 @@ class Domain:
                 c.fail(f"{t}.size", self.size,
                        f"{AXES[a]} = {_g(s)} gives only {round(n)} cells of cell_size {_g(h)}; at least 4 "
                        f"are needed: enlarge [domain].size or reduce [domain].cell_size")
-        self._check_total(c, 1)
         if self.gravity is None:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
         self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, dim_why(dim))

@@ -278,6 +278,8 @@ BAD = [
      ["[materials.oil].gamma", "1.0", "> 1"]),
     ("zero ambient pressure", setk("domain", "ambient_pressure", value=0.0), ["[domain].ambient_pressure", "0.0"]),
     ("bad interface", setk("solver", "interface", value="level_set"), ["[solver].interface", "'level_set'", "'sharp'"]),
+    ("bad liquid velocity", setk("solver", "liquid_velocity", value="separate"),
+     ["[solver].liquid_velocity", "'separate'", "'own'", "'shared'"]),
     ("negative surface tension", setk("materials", "water", "surface_tension", value=-0.07),
      ["[materials.water].surface_tension", "-0.07", ">= 0"]),
     ("surface tension on a gas", setk("materials", "oil", value={"kind": "gas", "surface_tension": 0.07}),

@@ -240,11 +240,12 @@ class ColliderStage:
         sim._launch(mark_collider_cells, g.cells,
                     [self.shapes, t, sim._origin, g.dx, g.dim, sim.types, self.collider_of_cell])
 
-    def set_face_velocities(self, sim, t: float):
+    def set_face_velocities(self, sim, t: float, vel=None):
+        """Moving colliders' velocity on the faces they touch (of `vel`, default the grid's field)."""
         if self.moving:
             for a in sim.grid.axes:
                 sim._launch(moving_collider_faces, sim.grid.face_shape(a),
-                            [self.shapes, self.collider_of_cell, t, a, sim.vel[a]])
+                            [self.shapes, self.collider_of_cell, t, a, (vel or sim.vel)[a]])
 
     def push_out(self, sim, t: float):
         sim._launch(push_out_of_colliders, sim.num_particles,

@@ -161,9 +161,18 @@ def at(a: wp.array3d(dtype=float), c: wp.vec3i):
 
 
 @wp.func
+def is_phase_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i, which: int):
+    """A fluid cell of phase `which` (cells outside the array are not)."""
+    if cell_type_at(types, c) == FLUID:  # nested: Warp evaluates both sides of `and`
+        if phase[c[0], c[1], c[2]] == which:
+            return True
+    return False
+
+
+@wp.func
 def is_liquid_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i):
     """A fluid cell on the liquid side of the interface (cells outside the array are not)."""
-    return cell_type_at(types, c) == FLUID and phase[c[0], c[1], c[2]] == PHASE_LIQUID
+    return is_phase_cell(types, phase, c, PHASE_LIQUID)
 
 
 @wp.kernel
@@ -406,6 +415,30 @@ def subtract_pressure_gradient(
     elif (is_solid(t_lo) and t_hi == FLUID) or (is_solid(t_hi) and t_lo == FLUID):
         ok = 1
     valid[i, j, k] = ok
+
+
+@wp.kernel
+def keep_phase_faces(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    axis: int,
+    keep: int,
+    valid_in: wp.array3d(dtype=wp.int32),
+    valid_out: wp.array3d(dtype=wp.int32),
+):
+    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
+
+    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
+    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
+    beside it across the interface. A face between a liquid and a gas cell keeps the normal
+    velocity both phases share.
+    """
+    i, j, k = wp.tid()
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    valid_out[i, j, k] = 0
+    if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
+        valid_out[i, j, k] = valid_in[i, j, k]
 
 
 @wp.kernel

@@ -8,7 +8,8 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid):
     viscosity (only with viscosity > 0) explicit diffusion of u*
     tension   (only with surface_tension > 0) the Laplace jump on the liquid's surface faces
     pressure  multigrid-PCG solve of the one two-phase system, u = u* - dt/rho grad p
-    extend    extrapolate u past the liquid, enforce walls
+    extend    extrapolate u past the liquid, enforce walls (sharp interface with gas: the liquid's own
+              field is extrapolated across the interface; the gas keeps the shared one)
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
     vent      (gas only) gas reaching open air leaves the simulation, its mass booked
 
@@ -176,6 +177,10 @@ class Simulation:
         self.target_div, self.gas_rate = gas_cells(), gas_cells()
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
         self.extra_diag = cells()  # kappa/dt^2 of gas cells
+        # Sharp interface, liquid_velocity = "own": self.vel is the liquid's own field, and the gas
+        # reads the shared projected field, gas_vel.
+        own = self.has_gas and self.scene.solver.interface == "sharp" and self.scene.solver.liquid_velocity == "own"
+        self.gas_vel, self.gas_valid = (faces(), faces(wp.int32)) if own else (None, None)
         self.counters = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed = wp.zeros(1, dtype=float, device=dev)
         self.nonfinite = wp.zeros(1, dtype=wp.int32, device=dev)  # particles p2g refused this step
@@ -337,29 +342,29 @@ class Simulation:
                 self._launch(gk.subtract_pressure_gradient, g.face_shape(a),
                              [self.types, self.pressure, self.inv_rho[a], a, g.dx, dt, self.vel[a], self.valid[a]])
         with self.timer("extend"):
-            for a in g.axes:
-                for _ in range(EXTRAPOLATION_LAYERS):
-                    self._launch(gk.extrapolate_velocity, g.face_shape(a),
-                                 [self.vel[a], self.valid[a], g.dim, self.vel_tmp[a], self.valid_tmp[a]])
-                    self.vel[a], self.vel_tmp[a] = self.vel_tmp[a], self.vel[a]
-                    self.valid[a], self.valid_tmp[a] = self.valid_tmp[a], self.valid[a]
-                self._launch(gk.enforce_walls, g.face_shape(a), [self.types, a, self.vel[a]])
-            if self.colliders:
-                self.colliders.set_face_velocities(self, self.time)
+            if self.gas_vel:  # the gas reads the shared field; the liquid its own, extended into the gas
+                for a in g.axes:
+                    wp.copy(self.gas_vel[a], self.vel[a])
+                    wp.copy(self.gas_valid[a], self.valid[a])
+                    self._launch(gk.keep_phase_faces, g.face_shape(a),
+                                 [self.types, self.phase_cells, a, PHASE_LIQUID, self.gas_valid[a], self.valid[a]])
+                self._extend(self.gas_vel, self.gas_valid)
+            self._extend(self.vel, self.valid)
         with self.timer("g2p"):
             # Sharp interface: the gas takes its cells' volume change (before g2p moves it: the weights
             # p2g_gas used). The baseline treats a cell with any gas as all gas, so there the
             # published rule stays: J follows the interpolated divergence.
             gas_J_from_cells = int(self.has_gas and self._interface == INTERFACE_SHARP)
             if gas_J_from_cells:
-                self._launch(gas_volume_rate, g.cells, [self.types, *self.vel, self.gas_volume, self.target_div,
+                self._launch(gas_volume_rate, g.cells, [self.types, *(self.gas_vel or self.vel), self.gas_volume,
+                                                           self.target_div,
                                                            g.dx, g.dim, self.gas_rate])
                 self._launch(update_gas_J, self.num_particles,
                              [self.x, self.phase, self.active, self.gas_rate, self._origin, g.dx, g.dim,
                               self._domain_hi, dt, self.J])
             self.max_speed.zero_()
             self._launch(g2p_advect, self.num_particles,
-                         [*self.vel, self._origin, g.dx, g.dim, dt, self._domain_hi,
+                         [*self.vel, *(self.gas_vel or self.vel), self._origin, g.dx, g.dim, dt, self._domain_hi,
                           self.x, self.v, self.C, self.J, self.active, self.phase, gas_J_from_cells,
                           self.max_speed])
         if self.entrainment:
@@ -383,6 +388,19 @@ class Simulation:
         self._max_speed = float(self.max_speed.numpy()[0])  # g2p and the effects that move particles
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
+
+    def _extend(self, vel, valid):
+        """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), walls, colliders."""
+        g = self.grid
+        for a in g.axes:
+            for _ in range(EXTRAPOLATION_LAYERS):
+                self._launch(gk.extrapolate_velocity, g.face_shape(a),
+                             [vel[a], valid[a], g.dim, self.vel_tmp[a], self.valid_tmp[a]])
+                vel[a], self.vel_tmp[a] = self.vel_tmp[a], vel[a]
+                valid[a], self.valid_tmp[a] = self.valid_tmp[a], valid[a]
+            self._launch(gk.enforce_walls, g.face_shape(a), [self.types, a, vel[a]])
+        if self.colliders:
+            self.colliders.set_face_velocities(self, self.time, vel)
 
     # ---------------------------------------------------------------------------- time steps
     def stable_dt(self) -> float:

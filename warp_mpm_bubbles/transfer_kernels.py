@@ -329,6 +329,27 @@ def interpolate_velocity(
 
 
 @wp.func
+def gather_velocity_and_affine(
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    xp: wp.vec3,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+):
+    """APIC gather at xp: the velocity and the affine matrix C (rows: one per face component)."""
+    inv_dx = 1.0 / dx
+    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
+    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
+    gw = wp.vec4(0.0)
+    if dim == 3:
+        gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
+    C = wp.matrix_from_rows(wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]), wp.vec3(gw[1], gw[2], gw[3]))
+    return wp.vec3(gu[0], gv[0], gw[0]), C
+
+
+@wp.func
 def wall_stopped(moved: wp.vec3, kept: wp.vec3, vp: wp.vec3, dim: int):
     """The velocity of a particle clamped from `moved` back to `kept`: it loses what pushed it out."""
     out = vp
@@ -345,6 +366,9 @@ def g2p_advect(
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
+    gas_u: wp.array3d(dtype=float),
+    gas_v: wp.array3d(dtype=float),
+    gas_w: wp.array3d(dtype=float),
     origin: wp.vec3,
     dx: float,
     dim: int,
@@ -365,16 +389,12 @@ def g2p_advect(
     if active[p] == 0 or phase[p] > PHASE_GAS:
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    inv_dx = 1.0 / dx
-    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
-    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
-    gw = wp.vec4(0.0)
-    if dim == 3:
-        gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
-    vp = wp.vec3(gu[0], gv[0], gw[0])
-    Cp = wp.matrix_from_rows(
-        wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]), wp.vec3(gw[1], gw[2], gw[3])
-    )
+    vp = wp.vec3(0.0)
+    Cp = wp.mat33(0.0)
+    if phase[p] == PHASE_GAS:  # the gas's own field (the liquid's when phase velocities are shared)
+        vp, Cp = gather_velocity_and_affine(gas_u, gas_v, gas_w, xp, origin, dx, dim)
+    else:
+        vp, Cp = gather_velocity_and_affine(vel_u, vel_v, vel_w, xp, origin, dx, dim)
     if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
         J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
 

@@ -1,0 +1,205 @@
+"""Issue #3's leak metric on a rising bubble, interface methods side by side, until it has risen
+five diameters.
+
+    python benchmarks/rising_bubble_leak.py                   # 2D, 8 cells per radius: ~6 min on 2 CPU cores
+    python benchmarks/rising_bubble_leak.py --dim 3 --cells-per-radius 5 --variants own   # 3D: ~40 min on the CPU
+    python benchmarks/rising_bubble_leak.py --dim 3 --cells-per-radius 10 --device cuda:0
+
+A 2 cm air bubble (Eotvos 54, water's surface tension) starts at rest near the bottom of a tank tall
+enough for it to rise five diameters before it nears the surface. Every frame (60 fps) the gas
+particles are measured with `warp_mpm_bubbles.diagnostics`:
+
+    liquid in gas   liquid volume at least one cell deep inside the gas, / gas volume (water leaked in)
+    gas in liquid   gas volume at least one cell deep inside the liquid, / gas volume (gas smeared out)
+    largest bubble  share of the gas in the largest connected bubble
+
+Variants: `own` (the default: sharp interface, the liquid reads its own velocity field), `shared`
+(sharp interface, one velocity field for both phases), `baseline` (the published method).
+Writes docs/leak_rising_bubble_<dim>d.{json,md,png}. A measurement, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warp_mpm_bubbles import (
+    Box,
+    Domain,
+    Material,
+    Output,
+    Scene,
+    SolverSettings,
+    Sphere,
+)
+from warp_mpm_bubbles import diagnostics as D
+from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.timing import describe_device
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+RADIUS = 0.01
+VARIANTS = {  # name: (interface, liquid_velocity)
+    "own": ("sharp", "own"),
+    "shared": ("sharp", "shared"),
+    "baseline": ("baseline", "shared"),
+}
+
+
+def tank(dim: int, cells_per_radius: int, variant: str) -> Scene:
+    """Water 0.18 m deep (0.20 in 2D), the bubble's centre 2.5 cm above the floor."""
+    interface, liquid_velocity = VARIANTS[variant]
+    width, depth = (0.08, 0.20) if dim == 2 else (0.06, 0.18)
+    lo, size = (0.0,) * dim, (width, depth + 0.02) + (width,) * (dim - 2)
+    water_hi = (width, depth) + (width,) * (dim - 2)
+    centre = (width / 2, 0.025) + (width / 2,) * (dim - 2)
+    return Scene(
+        domain=Domain(size=size, cell_size=RADIUS / cells_per_radius, walls="free_slip"),
+        materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
+        shapes=[Box("water", lo, water_hi), Sphere("air", centre, RADIUS)],
+        solver=SolverSettings(interface=interface, liquid_velocity=liquid_velocity),
+        output=Output(path=str(DOCS / "unused.usdc"), fps=60),
+    )
+
+
+def measure(sim: Simulation, dim: int) -> dict:
+    p = sim.particles_numpy()
+    gas = p["material"] == list(sim.scene.materials).index("air")
+    # In 2D the volumes are areas times the slab thickness dx: divide for the circle's diameter.
+    area = p["volume"] / (sim.grid.dx if dim == 2 else 1.0)
+    centroid, d_e = D.gas_centroid_and_diameter(p["positions"], gas, area, dim)
+    leak = D.phase_leak(p["positions"], gas, p["volume"], sim.grid.dx, sim.grid.interior, dim)
+    bubbles = D.bubble_volumes(p["positions"], gas, p["volume"], sim.grid.dx, sim.grid.interior, dim)
+    budget = sim.gas_budget()
+    return {"t": sim.time, "height": float(centroid[1]), "d_e": d_e, **leak,
+            "largest_bubble": float(bubbles[0] / p["volume"][gas].sum()) if len(bubbles) else 0.0,
+            "vented": budget["vented"] / budget["total"]}
+
+
+def run(variant: str, args, device) -> dict:
+    sim = Simulation(tank(args.dim, args.cells_per_radius, variant), device)
+    start = time.perf_counter()
+    first = measure(sim, args.dim)
+    frames = [first]
+    while frames[-1]["height"] - first["height"] < args.diameters * first["d_e"] and sim.time < args.max_time:
+        sim.advance_frame()
+        row = measure(sim, args.dim)
+        row["rise_diameters"] = (row["height"] - first["height"]) / first["d_e"]
+        frames.append(row)
+        print(f"  {variant:8s} t = {row['t']:.3f} s  rise {row['rise_diameters']:.2f} d  liquid in gas "
+              f"{100 * row['liquid_in_gas']:.2f}%  gas in liquid {100 * row['gas_in_liquid']:.2f}%  largest "
+              f"{100 * row['largest_bubble']:.0f}%", file=sys.stderr, flush=True)
+    frames[0]["rise_diameters"] = 0.0
+    wall = time.perf_counter() - start
+    r = np.array([(f["t"], f["height"]) for f in frames])
+    half = len(r) // 2
+    speed = float(np.polyfit(r[half:, 0], r[half:, 1], 1)[0]) if len(r) > 3 else float("nan")
+    last = frames[-1]
+    return {
+        "variant": variant, "interface": VARIANTS[variant][0], "liquid_velocity": VARIANTS[variant][1],
+        "particles": sim.num_particles, "steps": sim.stats.steps, "wall_seconds": wall,
+        "rise_diameters": last["rise_diameters"], "time": last["t"], "rise_speed": speed,
+        "liquid_in_gas_max": max(f["liquid_in_gas"] for f in frames), "liquid_in_gas_end": last["liquid_in_gas"],
+        "gas_in_liquid_end": last["gas_in_liquid"], "largest_bubble_end": last["largest_bubble"],
+        "vented_end": last["vented"], "frames": frames,
+    }
+
+
+def plot(results: list[dict], path: Path, title: str):
+    try:
+        import matplotlib
+    except ImportError:
+        print("matplotlib not installed (pip install -e .[plots]): no picture", file=sys.stderr)
+        return
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for res in results:
+        x = [f["rise_diameters"] for f in res["frames"]]
+        axes[0].plot(x, [100 * f["liquid_in_gas"] for f in res["frames"]], label=res["variant"])
+        axes[1].plot(x, [100 * f["gas_in_liquid"] for f in res["frames"]], label=res["variant"])
+        axes[2].plot(x, [100 * f["largest_bubble"] for f in res["frames"]], label=res["variant"])
+    axes[0].axhline(1.0, color="k", lw=0.8, ls="--", label="issue #3's bar (1%)")
+    for ax, name in zip(axes, ("liquid in gas, % of gas volume", "gas in liquid, % of gas volume",
+                               "largest bubble, % of the gas")):
+        ax.set_xlabel("rise, bubble diameters")
+        ax.set_title(name, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
+    parser.add_argument("--cells-per-radius", type=int, default=None, help="default 8 in 2D, 5 in 3D")
+    parser.add_argument("--diameters", type=float, default=5.0, help="stop once the bubble has risen this far")
+    parser.add_argument("--max-time", type=float, default=1.5, help="simulated seconds at most")
+    parser.add_argument("--variants", default="own,shared,baseline", help=f"comma list of {', '.join(VARIANTS)}")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--label", default=None, help="file name suffix (default <dim>d)")
+    args = parser.parse_args()
+    args.cells_per_radius = args.cells_per_radius or (8 if args.dim == 2 else 5)
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
+    wp.config.quiet = True
+    device = wp.get_device(args.device)
+    results = []
+    for v in variants:  # the files are rewritten after each variant: a long run keeps what it finished
+        results.append(run(v, args, device))
+        report(results, args, device)
+    return 0
+
+
+def report(results: list[dict], args, device):
+    d_e = results[0]["frames"][0]["d_e"]
+    reference = 0.711 * math.sqrt(9.81 * d_e) if args.dim == 3 else None
+    date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    command = "python " + " ".join(sys.argv)
+    lines = [
+        f"# Leak of a rising bubble, {args.dim}D, {args.cells_per_radius} cells per radius, on {describe_device(device)}",
+        "", f"- date {date}, warp {wp.config.version}, command `{command}`",
+        (f"- 2 cm air bubble in water, surface tension 0.072 N/m; measured every frame until it has risen "
+        f"{args.diameters:g} diameters (d_e = {100 * d_e:.2f} cm)"),
+        ("- liquid in gas: liquid at least one cell deep inside the gas (water leaked into bubbles); gas in "
+        "liquid: gas at least one cell deep inside the liquid; both relative to the gas volume"),
+        "", ("| variant | interface | liquid velocity | rise | time | rise speed | liquid in gas (max) | "
+        "liquid in gas (end) | gas in liquid (end) | largest bubble (end) | vented | steps | wall s |"),
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r['variant']} | {r['interface']} | {r['liquid_velocity']} | {r['rise_diameters']:.2f} d | "
+            f"{r['time']:.3f} s | {r['rise_speed']:.3f} m/s | {100 * r['liquid_in_gas_max']:.2f}% | "
+            f"{100 * r['liquid_in_gas_end']:.2f}% | {100 * r['gas_in_liquid_end']:.1f}% | "
+            f"{100 * r['largest_bubble_end']:.0f}% | {100 * r['vented_end']:.1f}% | {r['steps']} | "
+            f"{r['wall_seconds']:.0f} |")
+    if reference:
+        lines += ["", (f"Davies & Taylor: 0.711 sqrt(g d_e) = {reference:.3f} m/s (rise speed: the centroid's "
+                      "slope over the second half of the run).")]
+    md = "\n".join(lines) + "\n"
+    print(md)
+    DOCS.mkdir(exist_ok=True)
+    label = args.label or f"{args.dim}d"
+    stem = DOCS / f"leak_rising_bubble_{label}"
+    meta = {"date": date, "command": command, "device": describe_device(device), "warp_version": wp.config.version,
+            "dim": args.dim, "cells_per_radius": args.cells_per_radius, "davies_taylor": reference}
+    stem.with_suffix(".json").write_text(json.dumps({**meta, "results": results}, indent=1))
+    stem.with_suffix(".md").write_text(md)
+    plot(results, stem.with_suffix(".png"), f"rising bubble, {args.dim}D, {args.cells_per_radius} cells per radius")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -27,7 +27,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
-from . import tension_kernels as tk
+from . import force_kernels as fk
 from .grid import INTERFACE_SHARP, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .scene import INTERFACES
@@ -300,20 +300,20 @@ class Simulation:
         if self.nu_max > 0.0:
             with self.timer("viscosity"):
                 for a in g.axes:
-                    self._launch(gk.diffuse_velocity, g.face_shape(a),
+                    self._launch(fk.diffuse_velocity, g.face_shape(a),
                                  [self.types, self.phase_cells, self.inv_rho[a], self.vel[a], self.nu_liquid,
                                   self.nu_gas, a, g.dim, g.dx, dt, self.vel_tmp[a]])
                     self.vel[a], self.vel_tmp[a] = self.vel_tmp[a], self.vel[a]
         if self.sigma > 0.0:
             with self.timer("tension"):
                 level, smoothed = self.level, self.level_tmp
-                self._launch(tk.liquid_level_set, g.cells, [self.liq_volume, 1.0 / g.dx**3, level])
+                self._launch(fk.liquid_level_set, g.cells, [self.liq_volume, 1.0 / g.dx**3, level])
                 for _ in range(LEVEL_SET_SMOOTHING):
-                    self._launch(tk.smooth_level_set, g.cells, [self.types, level, g.dim, smoothed])
+                    self._launch(fk.smooth_level_set, g.cells, [self.types, level, g.dim, smoothed])
                     level, smoothed = smoothed, level
-                self._launch(tk.surface_curvature, g.cells, [self.types, level, g.dx, g.dim, self.curvature])
+                self._launch(fk.surface_curvature, g.cells, [self.types, level, g.dx, g.dim, self.curvature])
                 for a in g.axes:
-                    self._launch(tk.apply_surface_tension, g.face_shape(a),
+                    self._launch(fk.apply_surface_tension, g.face_shape(a),
                                  [self.types, self.phase_cells, level, self.curvature, self.inv_rho[a],
                                   self.sigma, a, g.dx, dt, self.vel[a]])
         with self.timer("grid"):

@@ -1,9 +1,13 @@
-"""Surface tension (runs only when a liquid has surface_tension > 0): the liquid's level set,
-its smoothing and curvature, and the Laplace pressure jump on the faces of the liquid's surface.
+"""The optional forces on u* before the pressure solve, each run only when a material asks for it:
+
+- surface tension (a liquid's surface_tension > 0): the liquid's level set, its smoothing and
+  curvature, and the Laplace pressure jump on the faces of the liquid's surface;
+- viscosity (any material's viscosity > 0): explicit diffusion of the face velocities.
 """
 
 import warp as wp
 
+from .grid import SOLID_NO_SLIP
 from .grid_kernels import cell_type_at, is_liquid_cell, is_solid, unit
 
 wp.set_module_options({"enable_backward": False})
@@ -149,3 +153,51 @@ def apply_surface_tension(
         theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)
     kappa = (1.0 - theta) * curvature[cl[0], cl[1], cl[2]] + theta * curvature[cn[0], cn[1], cn[2]]
     vel[i, j, k] = vel[i, j, k] + dt * inv_rho[i, j, k] * orient * sigma * kappa / dx
+
+
+@wp.kernel
+def diffuse_velocity(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    inv_rho: wp.array3d(dtype=float),
+    vel: wp.array3d(dtype=float),
+    nu_liquid: float,
+    nu_gas: float,
+    axis: int,
+    dim: int,
+    dx: float,
+    dt: float,
+    out: wp.array3d(dtype=float),
+):
+    """Explicit viscosity: u += dt nu lap(u) on the faces the pressure acts on, nu of the phase beside
+    the face (the liquid's if either side is liquid).
+
+    A neighbour face outside the material contributes nothing (zero gradient: a stress-free
+    surface or a free-slip wall); a tangential neighbour inside a no-slip wall is taken as -u, so
+    the velocity is zero on the wall.
+    """
+    i, j, k = wp.tid()
+    u = vel[i, j, k]
+    out[i, j, k] = u
+    if inv_rho[i, j, k] == 0.0:
+        return
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    nu = nu_gas
+    if is_liquid_cell(types, phase, lo) or is_liquid_cell(types, phase, hi):
+        nu = nu_liquid
+    lap = float(0.0)
+    for a in range(dim):
+        for s in range(2):
+            n = hi + (2 * s - 1) * unit(a)
+            if n[0] < 0 or n[1] < 0 or n[2] < 0 or n[0] >= vel.shape[0] or n[1] >= vel.shape[1] or n[2] >= vel.shape[2]:
+                continue
+            t_a = cell_type_at(types, n - unit(axis))
+            t_b = cell_type_at(types, n)
+            if inv_rho[n[0], n[1], n[2]] > 0.0:
+                lap += vel[n[0], n[1], n[2]] - u
+            elif a == axis and (is_solid(t_a) or is_solid(t_b)):
+                lap += vel[n[0], n[1], n[2]] - u  # the wall's normal face: the wall's velocity, 0
+            elif a != axis and (t_a == SOLID_NO_SLIP or t_b == SOLID_NO_SLIP):
+                lap += -2.0 * u  # mirrored across a no-slip wall half a cell away
+    out[i, j, k] = u + dt * nu * lap / (dx * dx)

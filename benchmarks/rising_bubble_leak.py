@@ -51,6 +51,7 @@ from warp_mpm_bubbles.timing import describe_device
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 RADIUS = 0.01
 TANK_WIDTH = {2: 0.08, 3: 0.06}  # m
+CAP_ANGLE = math.radians(50.0)  # half-angle of a spherical-cap bubble (Davies & Taylor 1950 measured ~50 degrees)
 VARIANTS = {  # name: (interface, liquid_velocity, effects)
     "own": ("sharp", "own", {}),
     "shared": ("sharp", "shared", {}),
@@ -59,17 +60,32 @@ VARIANTS = {  # name: (interface, liquid_velocity, effects)
 }
 
 
-def tank(dim: int, cells_per_radius: int, variant: str) -> Scene:
-    """Water 0.18 m deep (0.20 in 2D), the bubble's centre 2.5 cm above the floor."""
+def tank(dim: int, cells_per_radius: int, variant: str, shape: str = "sphere") -> Scene:
+    """Water 0.18 m deep (0.20 in 2D) and the bubble near the floor: a sphere of RADIUS centred 2.5 cm
+    up, or Davies & Taylor's spherical cap (half-angle CAP_ANGLE) of the same volume. Released
+    from rest, a large bubble becomes a spherical cap or a toroidal bubble depending on how it
+    starts (Walters & Davidson 1963; Bonometti & Magnaudet 2006): the cap start is the one
+    Davies & Taylor's rise speed describes."""
     interface, liquid_velocity, effects = VARIANTS[variant]
     width, depth = TANK_WIDTH[dim], 0.20 if dim == 2 else 0.18
     lo, size = (0.0,) * dim, (width, depth + 0.02) + (width,) * (dim - 2)
-    water_hi = (width, depth) + (width,) * (dim - 2)
-    centre = (width / 2, 0.025) + (width / 2,) * (dim - 2)
+    across = lambda y: (width / 2, y) + (width / 2,) * (dim - 2)  # noqa: E731
+    shapes = [Box("water", lo, (width, depth) + (width,) * (dim - 2))]
+    if shape == "sphere":
+        shapes.append(Sphere("air", across(0.025), RADIUS))
+    else:  # the cap: a ball of radius R_c cut by water refilled below its base
+        c = math.cos(CAP_ANGLE)
+        if dim == 3:  # pi R_c^3 (1 - c)^2 (2 + c) / 3 = 4/3 pi R^3
+            r_c = RADIUS * (4.0 / ((1.0 - c) ** 2 * (2.0 + c))) ** (1.0 / 3.0)
+        else:  # R_c^2 (theta - sin theta cos theta) = pi R^2
+            r_c = RADIUS * math.sqrt(math.pi / (CAP_ANGLE - math.sin(CAP_ANGLE) * c))
+        centre_y = 1.02 * r_c  # the ball must lie inside the domain
+        shapes += [Sphere("air", across(centre_y), r_c),
+                   Box("water", lo, (width, centre_y + r_c * c) + (width,) * (dim - 2))]
     return Scene(
         domain=Domain(size=size, cell_size=RADIUS / cells_per_radius, walls="free_slip"),
         materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
-        shapes=[Box("water", lo, water_hi), Sphere("air", centre, RADIUS)],
+        shapes=shapes,
         solver=SolverSettings(interface=interface, liquid_velocity=liquid_velocity),
         effects=dict(effects),
         output=Output(path=str(DOCS / "unused.usdc"), fps=60),
@@ -95,7 +111,7 @@ def measure(sim: Simulation, dim: int) -> dict:
 
 
 def run(variant: str, args, device) -> dict:
-    sim = Simulation(tank(args.dim, args.cells_per_radius, variant), device)
+    sim = Simulation(tank(args.dim, args.cells_per_radius, variant, args.shape), device)
     start = time.perf_counter()
     first = measure(sim, args.dim)
     frames = [first]
@@ -160,6 +176,8 @@ def main() -> int:
     parser.add_argument("--variants", default="own,shared,baseline", help=f"comma list of {', '.join(VARIANTS)}")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--label", default=None, help="file name suffix (default <dim>d)")
+    parser.add_argument("--shape", choices=("sphere", "cap"), default="sphere",
+                        help="the bubble at rest: a sphere, or Davies & Taylor's spherical cap of the same volume")
     parser.add_argument("--render-only", action="store_true", help="rewrite the table and picture from the JSON")
     args = parser.parse_args()
     args.cells_per_radius = args.cells_per_radius or (8 if args.dim == 2 else 5)
@@ -169,7 +187,7 @@ def main() -> int:
         parser.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
     wp.config.quiet = True
     device = wp.get_device(args.device)
-    label = args.label or f"{args.dim}d"
+    label = args.label or f"{args.dim}d" + ("_cap" if args.shape == "cap" else "")
     stem = DOCS / f"leak_rising_bubble_{label}"
     if args.render_only:  # the table and picture again from the saved figures (its date, command, device)
         saved = json.loads(stem.with_suffix(".json").read_text())
@@ -178,7 +196,7 @@ def main() -> int:
     meta = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "command": "python " + " ".join(sys.argv), "device": describe_device(device),
             "warp_version": wp.config.version, "dim": args.dim, "cells_per_radius": args.cells_per_radius,
-            "diameters": args.diameters}
+            "diameters": args.diameters, "shape": args.shape}
     results = []
     for v in variants:  # the files are rewritten after each variant: a long run keeps what it finished
         results.append(run(v, args, device))
@@ -198,7 +216,7 @@ def write(results: list[dict], meta: dict, stem: Path):
     lines = [
         f"# Leak of a rising bubble, {dim}D, {meta['cells_per_radius']} cells per radius, on {meta['device']}",
         "", f"- date {meta['date']}, warp {meta['warp_version']}, command `{meta['command']}`",
-        (f"- 2 cm air bubble in water, surface tension 0.072 N/m; measured every frame until it has risen "
+        (f"- 2 cm air bubble in water ({meta.get('shape', 'sphere')} at rest), surface tension 0.072 N/m; measured every frame until it has risen "
          f"{meta.get('diameters', 5.0):g} diameters (d_e = {100 * d_e:.2f} cm)"),
         ("- liquid in gas: liquid at least one cell deep inside the gas (water leaked into bubbles); gas in "
          "liquid: gas at least one cell deep inside the liquid; both, the largest bubble and the sub-grid "

@@ -1,7 +1,7 @@
 """Issue #3's leak metric on a rising bubble, interface methods side by side, until it has risen
 five diameters.
 
-    python benchmarks/rising_bubble_leak.py                   # 2D, 8 cells per radius: ~4 min on the CPU
+    python benchmarks/rising_bubble_leak.py                   # 2D, 8 cells per radius: ~5 min on the CPU
     python benchmarks/rising_bubble_leak.py --dim 3 --variants own,shared   # 3D, 5 cells per radius: ~25 min
     python benchmarks/rising_bubble_leak.py --dim 3 --cells-per-radius 10 --device cuda:0
 
@@ -13,9 +13,10 @@ particles are measured with `warp_mpm_bubbles.diagnostics`:
     gas in liquid   gas volume at least one cell deep inside the liquid, / gas volume (gas smeared out)
     largest bubble  share of the gas in the largest connected bubble
 
-Variants: `own` (the default: sharp interface, the liquid reads its own velocity field), `shared`
-(sharp interface, one velocity field for both phases), `baseline` (the published method),
-`own+subgrid` (the default with the sub-grid bubble effect: gas shed below the grid's size becomes
+Variants: `own` (the default: sharp interface, the liquid reads its own velocity field, gas films
+thinner than a cell retract into their bubble), `own/passive` (the same with films left to ride the
+liquid, the default before gas_films existed), `shared` (sharp interface, one velocity field for both
+phases), `baseline` (the published method), `own+subgrid` (the default with the sub-grid bubble effect: gas shed below the grid's size becomes
 Lagrangian bubbles, counted apart from the resolved gas in the `sub-grid` column).
 Writes docs/leak_rising_bubble_<dim>d.{json,md,png}. A measurement, not a test.
 """
@@ -52,11 +53,12 @@ DOCS = Path(__file__).resolve().parent.parent / "docs"
 RADIUS = 0.01
 TANK_WIDTH = {2: 0.08, 3: 0.06}  # m
 CAP_ANGLE = math.radians(50.0)  # half-angle of a spherical-cap bubble (Davies & Taylor 1950 measured ~50 degrees)
-VARIANTS = {  # name: (interface, liquid_velocity, effects)
-    "own": ("sharp", "own", {}),
-    "shared": ("sharp", "shared", {}),
-    "baseline": ("baseline", "shared", {}),
-    "own+subgrid": ("sharp", "own", {"subgrid_bubbles": SubgridBubbles()}),
+VARIANTS = {  # name: (interface, liquid_velocity, gas_films, effects)
+    "own": ("sharp", "own", "retract", {}),
+    "own/passive": ("sharp", "own", "passive", {}),
+    "shared": ("sharp", "shared", "retract", {}),
+    "baseline": ("baseline", "shared", "passive", {}),  # the baseline has no sub-cell gas to retract
+    "own+subgrid": ("sharp", "own", "retract", {"subgrid_bubbles": SubgridBubbles()}),
 }
 
 
@@ -66,7 +68,7 @@ def tank(dim: int, cells_per_radius: int, variant: str, shape: str = "sphere") -
     from rest, a large bubble becomes a spherical cap or a toroidal bubble depending on how it
     starts (Walters & Davidson 1963; Bonometti & Magnaudet 2006): the cap start is the one
     Davies & Taylor's rise speed describes."""
-    interface, liquid_velocity, effects = VARIANTS[variant]
+    interface, liquid_velocity, gas_films, effects = VARIANTS[variant]
     width, depth = TANK_WIDTH[dim], 0.20 if dim == 2 else 0.18
     lo, size = (0.0,) * dim, (width, depth + 0.02) + (width,) * (dim - 2)
     across = lambda y: (width / 2, y) + (width / 2,) * (dim - 2)  # noqa: E731
@@ -86,7 +88,7 @@ def tank(dim: int, cells_per_radius: int, variant: str, shape: str = "sphere") -
         domain=Domain(size=size, cell_size=RADIUS / cells_per_radius, walls="free_slip"),
         materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
         shapes=shapes,
-        solver=SolverSettings(interface=interface, liquid_velocity=liquid_velocity),
+        solver=SolverSettings(interface=interface, liquid_velocity=liquid_velocity, gas_films=gas_films),
         effects=dict(effects),
         output=Output(path=str(DOCS / "unused.usdc"), fps=60),
     )
@@ -120,7 +122,7 @@ def run(variant: str, args, device) -> dict:
         row = measure(sim, args.dim)
         row["rise_diameters"] = (row["height"] - first["height"]) / first["d_e"]
         frames.append(row)
-        print(f"  {variant:8s} t = {row['t']:.3f} s  rise {row['rise_diameters']:.2f} d  liquid in gas "
+        print(f"  {variant:11s} t = {row['t']:.3f} s  rise {row['rise_diameters']:.2f} d  liquid in gas "
               f"{100 * row['liquid_in_gas']:.2f}%  gas in liquid {100 * row['gas_in_liquid']:.2f}%  largest "
               f"{100 * row['largest_bubble']:.0f}%", file=sys.stderr, flush=True)
     frames[0]["rise_diameters"] = 0.0
@@ -131,7 +133,7 @@ def run(variant: str, args, device) -> dict:
     last = frames[-1]
     return {
         "variant": variant, "interface": VARIANTS[variant][0], "liquid_velocity": VARIANTS[variant][1],
-        "effects": sorted(VARIANTS[variant][2]), "subgrid_end": last["subgrid"],
+        "gas_films": VARIANTS[variant][2], "effects": sorted(VARIANTS[variant][3]), "subgrid_end": last["subgrid"],
         "particles": sim.num_particles, "steps": sim.stats.steps, "wall_seconds": wall,
         "rise_diameters": last["rise_diameters"], "time": last["t"], "rise_speed": speed,
         "liquid_in_gas_max": max(f["liquid_in_gas"] for f in frames), "liquid_in_gas_end": last["liquid_in_gas"],
@@ -173,7 +175,7 @@ def main() -> int:
     parser.add_argument("--cells-per-radius", type=int, default=None, help="default 8 in 2D, 5 in 3D")
     parser.add_argument("--diameters", type=float, default=5.0, help="stop once the bubble has risen this far")
     parser.add_argument("--max-time", type=float, default=1.5, help="simulated seconds at most")
-    parser.add_argument("--variants", default="own,shared,baseline", help=f"comma list of {', '.join(VARIANTS)}")
+    parser.add_argument("--variants", default="own,own/passive,shared,baseline", help=f"comma list of {', '.join(VARIANTS)}")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--label", default=None, help="file name suffix (default <dim>d)")
     parser.add_argument("--shape", choices=("sphere", "cap"), default="sphere",
@@ -233,14 +235,16 @@ def write(results: list[dict], meta: dict, stem: Path):
         ("- liquid in gas: liquid at least one cell deep inside the gas (water leaked into bubbles); gas in "
          "liquid: gas at least one cell deep inside the liquid; both, the largest bubble and the sub-grid "
          "bubbles relative to all the gas under water"),
-        "", ("| variant | interface | liquid velocity | rise | time | rise speed | liquid in gas (max) | "
+        "", ("| variant | interface | liquid velocity | gas films | rise | time | rise speed | liquid in gas (max) | "
              "liquid in gas (end) | gas in liquid (end) | largest bubble (end) | sub-grid | vented | steps | wall s | "
              "speed while one bubble |"),
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         lines.append(
-            f"| {r['variant']} | {r['interface']} | {r['liquid_velocity']} | {r['rise_diameters']:.2f} d | "
+            # runs saved before gas_films existed (commit ee0dea8 and older) all left films passive
+            f"| {r['variant']} | {r['interface']} | {r['liquid_velocity']} | {r.get('gas_films', 'passive')} | "
+            f"{r['rise_diameters']:.2f} d | "
             f"{r['time']:.3f} s | {r['rise_speed']:.3f} m/s | {100 * r['liquid_in_gas_max']:.2f}% | "
             f"{100 * r['liquid_in_gas_end']:.2f}% | {100 * r['gas_in_liquid_end']:.1f}% | "
             f"{100 * r['largest_bubble_end']:.0f}% | {100 * r.get('subgrid_end', 0.0):.1f}% | "

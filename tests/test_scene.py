@@ -280,6 +280,8 @@ BAD = [
     ("bad interface", setk("solver", "interface", value="level_set"), ["[solver].interface", "'level_set'", "'sharp'"]),
     ("bad liquid velocity", setk("solver", "liquid_velocity", value="separate"),
      ["[solver].liquid_velocity", "'separate'", "'own'", "'shared'"]),
+    ("bad gas films", setk("solver", "gas_films", value="retracted"),
+     ["[solver].gas_films", "'retracted'", "'retract'", "'passive'", "did you mean"]),
     ("negative surface tension", setk("materials", "water", "surface_tension", value=-0.07),
      ["[materials.water].surface_tension", "-0.07", ">= 0"]),
     ("surface tension on a gas", setk("materials", "oil", value={"kind": "gas", "surface_tension": 0.07}),

@@ -1,14 +1,16 @@
 """The optional forces on u* before the pressure solve, each run only when a material asks for it:
 
 - surface tension (a liquid's surface_tension > 0): the liquid's level set, its smoothing and
-  curvature, and the Laplace pressure jump on the faces of the liquid's surface;
+  curvature, and the Laplace pressure jump on the faces of the liquid's surface; after g2p, gas
+  films thinner than a cell retract into the bubble beside them (sharp interface, gas_films);
 - viscosity (any material's viscosity > 0): explicit diffusion of the face velocities.
 """
 
 import warp as wp
 
-from .grid import SOLID_NO_SLIP
-from .grid_kernels import cell_type_at, is_liquid_cell, is_solid, unit
+from .grid import PHASE_GAS, SOLID_NO_SLIP
+from .grid_kernels import cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit
+from .transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
 
@@ -201,3 +203,57 @@ def diffuse_velocity(
             elif a != axis and (t_a == SOLID_NO_SLIP or t_b == SOLID_NO_SLIP):
                 lap += -2.0 * u  # mirrored across a no-slip wall half a cell away
     out[i, j, k] = u + dt * nu * lap / (dx * dx)
+
+
+@wp.kernel
+def retract_gas_films(
+    types: wp.array3d(dtype=wp.int32),
+    phase_cells: wp.array3d(dtype=wp.int32),
+    gas_volume: wp.array3d(dtype=float),
+    capillary_speed: float,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    dt: float,
+    domain_hi: wp.vec3,
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+):
+    """Surface tension below the grid: a gas particle in a liquid cell with gas cells in its 3^d
+    neighbourhood (a bubble's skirt or rim thinner than a cell) moves towards them (their
+    gas-volume-weighted centre) at `capillary_speed`, the Taylor-Culick speed of a film one cell
+    thick, sqrt(2 sigma / (rho_l dx)) (thinner films retract faster), at most a quarter cell a step.
+
+    The Laplace jump acts only on faces between liquid and gas cells, so a film under a cell's size
+    feels no tension and rides the liquid away. Only the position moves: mass, velocity and J are kept.
+    """
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    xp = x[p]
+    c = cell_of(xp, origin, dx)
+    if not is_liquid_cell(types, phase_cells, c):
+        return
+    pull = wp.vec3(0.0)
+    nk = 1
+    if dim == 3:
+        nk = 3
+    for a in range(3):
+        for b in range(3):
+            for e in range(nk):
+                o = wp.vec3i(a - 1, b - 1, 0)
+                if dim == 3:
+                    o = wp.vec3i(a - 1, b - 1, e - 1)
+                n = c + o
+                if is_phase_cell(types, phase_cells, n, PHASE_GAS):
+                    centre = origin + dx * wp.vec3(float(n[0]) + 0.5, float(n[1]) + 0.5, float(n[2]) + 0.5)
+                    d = centre - xp
+                    if dim == 2:
+                        d[2] = 0.0
+                    pull += gas_volume[n[0], n[1], n[2]] * d
+    length = wp.length(pull)
+    if length == 0.0:
+        return
+    step = wp.min(capillary_speed * dt, 0.25 * dx)
+    x[p] = clamp_to_domain(xp + (step / length) * pull, domain_hi, dx, dim)

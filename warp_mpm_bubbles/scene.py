@@ -30,6 +30,7 @@ WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 MATERIAL_KINDS = ("liquid", "gas", "foam")  # foam: made by [effects.foam] from gas at the surface
 GAS_LAWS = ("isothermal", "adiabatic", "incompressible")  # p = B rho, p ~ rho^gamma, density ratio only
 LIQUID_VELOCITIES = ("own", "shared")  # g2p: the liquid from its own side of the interface, or the shared field
+GAS_FILMS = ("retract", "passive")  # gas thinner than a cell beside a bubble: drawn back by tension, or carried
 INTERFACES = ("sharp", "baseline")  # ghost-fluid gas-liquid faces, or the published "any gas particle" cells
 # Per-kind defaults: water, and air at 20 C and 1 atm.
 KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
@@ -306,6 +307,7 @@ class SolverSettings:
     preconditioner: str = "multigrid"  # V-cycle PCG; "jacobi" needs 10-75x the iterations (benchmarks/)
     interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
     liquid_velocity: str = "own"  # sharp interface: the liquid reads its own field extended into the gas, or "shared"
+    gas_films: str = "retract"  # sharp interface with tension: sub-cell gas beside a bubble retracts into it
     volume_correction: float = 0.3  # share of a cell's over-fill (beyond seeding noise) undone per step
     seed: int = 0
 
@@ -326,6 +328,7 @@ class SolverSettings:
         self.preconditioner = c.choice(f"{t}.preconditioner", self.preconditioner, PRECONDITIONERS)
         self.interface = c.choice(f"{t}.interface", self.interface, INTERFACES)
         self.liquid_velocity = c.choice(f"{t}.liquid_velocity", self.liquid_velocity, LIQUID_VELOCITIES)
+        self.gas_films = c.choice(f"{t}.gas_films", self.gas_films, GAS_FILMS)
         self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, whole=True)
 

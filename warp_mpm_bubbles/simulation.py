@@ -11,6 +11,7 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid):
     extend    extrapolate u past the liquid, enforce walls (sharp interface with gas: the liquid's own
               field is extrapolated across the interface; the gas keeps the shared one)
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
+              (+ with tension and gas: gas films thinner than a cell retract into their bubble)
     vent      (gas only) gas reaching open air leaves the simulation, its mass booked
 
 The time step follows the CFL limit and lands exactly on frame times. Inside a step the host reads
@@ -219,6 +220,11 @@ class Simulation:
         materials = list(self.scene.materials.values())
         liquids = [m for m in materials if m.kind == "liquid"]
         self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # tension runs only if > 0
+        self.rho_liquid = max((m.density for m in liquids), default=1000.0)
+        # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
+        # interface they retract into their bubble instead of riding the liquid away.
+        self.retract_films = (self.sigma > 0.0 and self.has_gas and self.scene.solver.interface == "sharp"
+                              and self.scene.solver.gas_films == "retract")
         if self.sigma > 0.0:
             self.curvature, self.level, self.level_tmp = (wp.zeros(g.cells, dtype=float, device=dev) for _ in range(3))
         # Kinematic viscosity per phase (the largest of its materials); viscosity runs only if > 0.
@@ -367,6 +373,12 @@ class Simulation:
                          [*self.vel, *(self.gas_vel or self.vel), self._origin, g.dx, g.dim, dt, self._domain_hi,
                           self.x, self.v, self.C, self.J, self.active, self.phase, gas_J_from_cells,
                           self.max_speed])
+        if self.retract_films:
+            with self.timer("tension"):  # the Laplace jump's sub-cell part: films retract into their bubble
+                self._launch(fk.retract_gas_films, self.num_particles,
+                             [self.types, self.phase_cells, self.gas_volume,
+                              math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx)), self._origin, g.dx, g.dim, dt,
+                              self._domain_hi, self.x, self.phase, self.active])
         if self.entrainment:
             with self.timer("entrainment"):
                 self.entrainment.step(self, dt)

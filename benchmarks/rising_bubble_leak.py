@@ -2,8 +2,9 @@
 five diameters.
 
     python benchmarks/rising_bubble_leak.py                   # 2D, 8 cells per radius: ~5 min on the CPU
-    python benchmarks/rising_bubble_leak.py --dim 3 --variants own,shared   # 3D, 5 cells per radius: ~25 min
-    python benchmarks/rising_bubble_leak.py --dim 3 --cells-per-radius 10 --device cuda:0
+    python benchmarks/rising_bubble_leak.py --dim 3 --shape cap --variants own,own/passive,shared  # 3D, 5 cells per radius: ~6 min each
+    python benchmarks/rising_bubble_leak.py --dim 3 --shape cap --cells-per-radius 7 --variants own --label 3d_cap_7  # ~25 min
+    python benchmarks/rising_bubble_leak.py --dim 3 --shape cap --cells-per-radius 10 --device cuda:0
 
 A 2 cm air bubble (Eotvos 54, water's surface tension) starts at rest near the bottom of a tank tall
 enough for it to rise five diameters before it nears the surface. Every frame (60 fps) the gas

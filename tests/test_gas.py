@@ -169,6 +169,51 @@ def test_a_bubble_rising_five_diameters_stays_a_bubble_without_water_inside(tmp_
     assert largest / p["volume"][gas].sum() > 0.5
 
 
+@pytest.mark.slow
+def test_a_3d_cap_bubble_rises_at_the_davies_taylor_speed(tmp_path):
+    # DESIGN §5: a large bubble (d_e = 2 cm, Eotvos 54) rises at 0.711 sqrt(g d_e) = 0.315 m/s in
+    # open water; in this 6 cm square tank (d/D = 0.33) the wall factor 1.13 exp(-d/D) (Wallis
+    # 1969; Clift, Grace & Weber ch. 9) gives 0.255 m/s. Started as Davies & Taylor's 50 degree
+    # cap of the same volume (a sphere at rest is pierced by its wake first), 4 cells per radius
+    # (CI size), speed of the gas centroid from 0.1 s (past the start-up) to 0.2 s.
+    # benchmarks/rising_bubble_leak.py --dim 3 --shape cap measured -2% here, and over five
+    # diameters -8% at 5 cells per radius and +5% at 7: the bound, 15%, covers that spread with the
+    # wall factor's own scatter. It stays one bubble meanwhile (largest 66% at 0.2 s) with no water
+    # inside (0.00%).
+    from warp_mpm_bubbles.diagnostics import bubble_volumes, gas_centroid_and_diameter, phase_leak
+
+    R, width, depth = 0.01, 0.06, 0.18
+    c = math.cos(math.radians(50.0))
+    r_cap = R * (4.0 / ((1.0 - c) ** 2 * (2.0 + c))) ** (1.0 / 3.0)  # the ball the cap is cut from
+    centre = (width / 2, 1.02 * r_cap, width / 2)
+    scene = Scene(
+        domain=Domain(size=(width, depth + 0.02, width), cell_size=R / 4, walls="free_slip"),
+        materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
+        shapes=[Box("water", min=(0.0, 0.0, 0.0), max=(width, depth, width)), Sphere("air", centre, r_cap),
+                Box("water", min=(0.0, 0.0, 0.0), max=(width, centre[1] + r_cap * c, width))],
+        output=Output(path=str(tmp_path / "cap.usdc"), fps=60),
+    )
+    sim = Simulation(scene, "cpu")
+    budget0 = sim.gas_budget()
+    d_e = (6.0 * budget0["volume"] / math.pi) ** (1.0 / 3.0)
+    assert d_e == pytest.approx(2 * R, rel=0.02)  # the cap holds the sphere's volume
+    times, heights = [], []
+    while sim.time < 0.2 - 1e-9:
+        sim.advance_frame()
+        if sim.time >= 0.1 - 1e-9:
+            p = sim.particles_numpy()
+            gas = p["material"] == 1
+            times.append(sim.time)
+            heights.append(gas_centroid_and_diameter(p["positions"], gas, p["volume"], 3)[0][1])
+    speed = np.polyfit(times, heights, 1)[0]
+    davies_taylor = 0.711 * math.sqrt(9.81 * d_e) * 1.13 * math.exp(-d_e / width)
+    assert speed == pytest.approx(davies_taylor, rel=0.15)
+    leak = phase_leak(p["positions"], gas, p["volume"], sim.grid.dx, sim.grid.interior, 3)
+    assert leak["liquid_in_gas"] < 0.01, leak
+    largest = bubble_volumes(p["positions"], gas, p["volume"], sim.grid.dx, sim.grid.interior, 3)[0]
+    assert largest / p["volume"][gas].sum() > 0.5
+
+
 def test_liquid_only_scene_runs_no_gas_stage(tmp_path):
     scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.01), materials={"water": Material("water")},
                   shapes=[Box("water", min=(0.0, 0.0), max=(0.1, 0.05))], output=Output(path=str(tmp_path / "w.usdc")))

@@ -61,31 +61,24 @@ def trapped_air(
     near_air = int(0)
     potential = float(0.0)
     weights = float(0.0)
-    nk = int(1)
-    if dim == 3:
-        nk = 3
-    for a in range(3):
-        for b in range(3):
-            for e in range(nk):
-                off = wp.vec3i(a - 1, b - 1, 0)
-                if dim == 3:
-                    off = wp.vec3i(a - 1, b - 1, e - 1)
-                if off[0] == 0 and off[1] == 0 and off[2] == 0:
-                    continue
-                t = gk.cell_type_at(types, c + off)
-                if t == EMPTY:
-                    near_air = 1  # there is air to trap
-                if t != FLUID:
-                    continue
-                d = wp.vec3(float(off[0]), float(off[1]), float(off[2]))
-                dist = wp.length(d)
-                weight = 1.0 - 0.5 * dist  # W = 1 - |x_cn| / 2dx
-                u_rel = u_c - cell_velocity(vel_u, vel_v, vel_w, c + off, dim)
-                speed = wp.length(u_rel)
-                if speed > 0.0:
-                    # x_cn = x_c - x_n = -d: approaching streams give 1 - cos > 1, up to 2 head-on
-                    potential += weight * speed * (1.0 + wp.dot(u_rel, d) / (speed * dist))
-                weights += weight
+    for q in range(gk.block_size(dim)):
+        off = gk.block_offset(q, dim)
+        if off[0] == 0 and off[1] == 0 and off[2] == 0:
+            continue
+        t = gk.cell_type_at(types, c + off)
+        if t == EMPTY:
+            near_air = 1  # there is air to trap
+        if t != FLUID:
+            continue
+        d = wp.vec3(float(off[0]), float(off[1]), float(off[2]))
+        dist = wp.length(d)
+        weight = 1.0 - 0.5 * dist  # W = 1 - |x_cn| / 2dx
+        u_rel = u_c - cell_velocity(vel_u, vel_v, vel_w, c + off, dim)
+        speed = wp.length(u_rel)
+        if speed > 0.0:
+            # x_cn = x_c - x_n = -d: approaching streams give 1 - cos > 1, up to 2 head-on
+            potential += weight * speed * (1.0 + wp.dot(u_rel, d) / (speed * dist))
+        weights += weight
     if near_air == 0 or weights == 0.0:
         return
     trapped = potential / weights

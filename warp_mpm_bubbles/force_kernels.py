@@ -9,7 +9,9 @@
 import warp as wp
 
 from .grid import PHASE_GAS, SOLID_NO_SLIP
-from .grid_kernels import cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit
+from .grid_kernels import (
+    block_offset, block_size, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
+)
 from .transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
@@ -46,19 +48,11 @@ def smooth_level_set(
         return
     total = float(0.0)
     weight = float(0.0)
-    nk = 1
-    if dim == 3:
-        nk = 3
-    for a in range(3):
-        for b in range(3):
-            for e in range(nk):
-                w = float((2 - wp.abs(a - 1)) * (2 - wp.abs(b - 1)))
-                o = wp.vec3i(a - 1, b - 1, 0)
-                if dim == 3:
-                    w = w * float(2 - wp.abs(e - 1))
-                    o = wp.vec3i(a - 1, b - 1, e - 1)
-                total += w * level_at(level, types, c + o, c)
-                weight += w
+    for q in range(block_size(dim)):
+        o = block_offset(q, dim)
+        w = float((2 - wp.abs(o[0])) * (2 - wp.abs(o[1])) * (2 - wp.abs(o[2])))
+        total += w * level_at(level, types, c + o, c)
+        weight += w
     out[i, j, k] = total / weight
 
 
@@ -236,22 +230,13 @@ def retract_gas_films(
     if not is_liquid_cell(types, phase_cells, c):
         return
     pull = wp.vec3(0.0)
-    nk = 1
-    if dim == 3:
-        nk = 3
-    for a in range(3):
-        for b in range(3):
-            for e in range(nk):
-                o = wp.vec3i(a - 1, b - 1, 0)
-                if dim == 3:
-                    o = wp.vec3i(a - 1, b - 1, e - 1)
-                n = c + o
-                if is_phase_cell(types, phase_cells, n, PHASE_GAS):
-                    centre = origin + dx * wp.vec3(float(n[0]) + 0.5, float(n[1]) + 0.5, float(n[2]) + 0.5)
-                    d = centre - xp
-                    if dim == 2:
-                        d[2] = 0.0
-                    pull += gas_volume[n[0], n[1], n[2]] * d
+    for q in range(block_size(dim)):
+        n = c + block_offset(q, dim)
+        if is_phase_cell(types, phase_cells, n, PHASE_GAS):
+            d = origin + dx * wp.vec3(float(n[0]) + 0.5, float(n[1]) + 0.5, float(n[2]) + 0.5) - xp
+            if dim == 2:
+                d[2] = 0.0  # the slab's centre plane, not the particle's place in its thickness
+            pull += gas_volume[n[0], n[1], n[2]] * d
     length = wp.length(pull)
     if length == 0.0:
         return

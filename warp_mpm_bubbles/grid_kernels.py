@@ -25,6 +25,22 @@ def unit(axis: int):
 
 
 @wp.func
+def block_size(dim: int):
+    """Cells in the 3^dim block around a cell (a 2D slab's block is 3 x 3)."""
+    if dim == 3:
+        return 27
+    return 9
+
+
+@wp.func
+def block_offset(q: int, dim: int):
+    """Offset q (0 <= q < block_size) of that block, in the order of loops over x, then y (, then z)."""
+    if dim == 3:
+        return wp.vec3i(q // 9 - 1, (q // 3) % 3 - 1, q % 3 - 1)
+    return wp.vec3i(q // 3 - 1, q % 3 - 1, 0)
+
+
+@wp.func
 def cell_type_at(types: wp.array3d(dtype=wp.int32), c: wp.vec3i):
     """Type of cell c; outside the array counts as a free-slip solid."""
     if c[0] < 0 or c[1] < 0 or c[2] < 0:

@@ -13,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from .grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
-from .grid_kernels import unit
+from .grid_kernels import cell_centre, unit
 from .transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
@@ -121,7 +121,7 @@ def mark_collider_cells(
     cover none).
     """
     i, j, k = wp.tid()
-    x = origin + dx * wp.vec3(float(i) + 0.5, float(j) + 0.5, float(k) + 0.5)
+    x = cell_centre(wp.vec3i(i, j, k), origin, dx)
     hit = nearest_collider(shapes, x, t, dim, GRID_MARGIN * dx)
     c = int(hit[0])
     collider_of_cell[i, j, k] = c

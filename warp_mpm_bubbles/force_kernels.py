@@ -10,7 +10,7 @@ import warp as wp
 
 from .grid import PHASE_GAS, SOLID_NO_SLIP
 from .grid_kernels import (
-    block_offset, block_size, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
+    block_offset, block_size, cell_centre, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
 from .transfer_kernels import clamp_to_domain
 
@@ -233,7 +233,7 @@ def retract_gas_films(
     for q in range(block_size(dim)):
         n = c + block_offset(q, dim)
         if is_phase_cell(types, phase_cells, n, PHASE_GAS):
-            d = origin + dx * wp.vec3(float(n[0]) + 0.5, float(n[1]) + 0.5, float(n[2]) + 0.5) - xp
+            d = cell_centre(n, origin, dx) - xp
             if dim == 2:
                 d[2] = 0.0  # the slab's centre plane, not the particle's place in its thickness
             pull += gas_volume[n[0], n[1], n[2]] * d

@@ -546,6 +546,12 @@ def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
 
 
 @wp.func
+def cell_centre(c: wp.vec3i, origin: wp.vec3, dx: float):
+    """The world position of cell c's centre (the inverse of cell_of)."""
+    return origin + dx * wp.vec3(float(c[0]) + 0.5, float(c[1]) + 0.5, float(c[2]) + 0.5)
+
+
+@wp.func
 def exposed_to_open_air(
     types: wp.array3d(dtype=wp.int32),
     ceiling: wp.array3d(dtype=wp.int32),

@@ -220,11 +220,12 @@ class Simulation:
         materials = list(self.scene.materials.values())
         liquids = [m for m in materials if m.kind == "liquid"]
         self.sigma = max((m.surface_tension for m in liquids), default=0.0)  # tension runs only if > 0
-        self.rho_liquid = max((m.density for m in liquids), default=1000.0)
+        self.rho_liquid = max((m.density for m in liquids), default=0.0)
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
-        # interface they retract into their bubble instead of riding the liquid away.
+        # interface they retract into their bubble, at the Taylor-Culick speed of a one-cell film.
         self.retract_films = (self.sigma > 0.0 and self.has_gas and self.scene.solver.interface == "sharp"
                               and self.scene.solver.gas_films == "retract")
+        self.film_speed = math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx)) if self.retract_films else 0.0
         if self.sigma > 0.0:
             self.curvature, self.level, self.level_tmp = (wp.zeros(g.cells, dtype=float, device=dev) for _ in range(3))
         # Kinematic viscosity per phase (the largest of its materials); viscosity runs only if > 0.
@@ -376,9 +377,8 @@ class Simulation:
         if self.retract_films:
             with self.timer("tension"):  # the Laplace jump's sub-cell part: films retract into their bubble
                 self._launch(fk.retract_gas_films, self.num_particles,
-                             [self.types, self.phase_cells, self.gas_volume,
-                              math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx)), self._origin, g.dx, g.dim, dt,
-                              self._domain_hi, self.x, self.phase, self.active])
+                             [self.types, self.phase_cells, self.gas_volume, self.film_speed, self._origin, g.dx,
+                              g.dim, dt, self._domain_hi, self.x, self.phase, self.active])
         if self.entrainment:
             with self.timer("entrainment"):
                 self.entrainment.step(self, dt)
@@ -429,9 +429,7 @@ class Simulation:
         dt = s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf
         if self.sigma > 0.0:
             # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
-            mats = self.scene.materials.values()
-            rho = max(m.density for m in mats if m.kind == "liquid") + max(
-                (m.density for m in mats if m.is_gas), default=0.0)
+            rho = self.rho_liquid + max((m.density for m in self.scene.materials.values() if m.is_gas), default=0.0)
             dt = min(dt, math.sqrt(rho * self.grid.dx**3 / (4.0 * math.pi * self.sigma)))
         if self.nu_max > 0.0:
             # Explicit diffusion: dt <= dx^2 / (2 dim nu) (DESIGN §4: rho dx^2 / (6 mu) in 3D).

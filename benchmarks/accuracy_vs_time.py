@@ -72,9 +72,9 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.diagnostics import gas_centroid_and_diameter
-from warp_mpm_bubbles.quality import GOVERNED, PRESETS, preset_value
-from warp_mpm_bubbles.simulation import Simulation
-from warp_mpm_bubbles.timing import describe_device
+from warp_mpm_bubbles.scene.quality import GOVERNED, PRESETS, preset_value
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.timing import describe_device
 
 ROOT = Path(__file__).resolve().parent.parent
 MARTIN_MOYCE = ROOT / "tests" / "data" / "martin_moyce_1952_n2_2_a2.25in.csv"

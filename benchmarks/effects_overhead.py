@@ -31,7 +31,7 @@ TIMER = r"""
 import sys, time, warp as wp
 wp.config.quiet = True
 from warp_mpm_bubbles import Box, Domain, Material, Scene, SolverSettings
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.core.simulation import Simulation
 n, steps, device = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 scene = Scene(domain=Domain(size=(1.0, 1.0, 1.0), cell_size=1.0 / n, walls="free_slip"),
               materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0, 0.0), (0.4, 0.625, 1.0))],
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
 
     now = statistics.median(r["now"] for r in rows)
     ref = statistics.median(r["ref"] for r in rows)
-    from warp_mpm_bubbles.timing import describe_device
+    from warp_mpm_bubbles.core.timing import describe_device
     import warp as wp
 
     wp.config.quiet = True

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warp_mpm_bubbles.grid import EMPTY, FLUID, SOLID_FREE_SLIP
-from warp_mpm_bubbles.timing import describe_device
-from warp_mpm_bubbles.pressure import PRECONDITIONERS, PressureSolver, PressureSystem
+from warp_mpm_bubbles.core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
+from warp_mpm_bubbles.core.timing import describe_device
+from warp_mpm_bubbles.core.pressure import PRECONDITIONERS, PressureSolver, PressureSystem
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RHO_LIQUID, RHO_GAS, P_ATM, G = 1000.0, 1.2, 101325.0, 9.81

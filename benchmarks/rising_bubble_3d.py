@@ -24,8 +24,8 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.diagnostics import gas_centroid_and_diameter
-from warp_mpm_bubbles.simulation import Simulation
-from warp_mpm_bubbles.timing import describe_device
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.timing import describe_device
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RADIUS = 0.01

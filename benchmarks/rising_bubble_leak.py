@@ -45,10 +45,10 @@ from warp_mpm_bubbles import (
     Sphere,
 )
 from warp_mpm_bubbles import diagnostics as D
-from warp_mpm_bubbles.grid import PHASE_GAS, PHASE_SUBGRID
-from warp_mpm_bubbles.scene_effects import SubgridBubbles
-from warp_mpm_bubbles.simulation import Simulation
-from warp_mpm_bubbles.timing import describe_device
+from warp_mpm_bubbles.core.grid import PHASE_GAS, PHASE_SUBGRID
+from warp_mpm_bubbles.scene.effects import SubgridBubbles
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.timing import describe_device
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 RADIUS = 0.01

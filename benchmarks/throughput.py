@@ -30,9 +30,9 @@ from pathlib import Path
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Scene, SolverSettings
-from warp_mpm_bubbles.timing import describe_device
-from warp_mpm_bubbles.simulation import Simulation, SolverStats
-from warp_mpm_bubbles.timing import StageTimer
+from warp_mpm_bubbles.core.timing import describe_device
+from warp_mpm_bubbles.core.simulation import Simulation, SolverStats
+from warp_mpm_bubbles.core.timing import StageTimer
 
 WATER_MAX = (0.4, 0.625, 1.0)  # water box corner; the other corner is the origin
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -19,7 +19,7 @@ def frame_data(frame: int, base: int):
 
 
 if __name__ == "__main__":
-    from warp_mpm_bubbles.usd_output import StageWriter
+    from warp_mpm_bubbles.io.usd_output import StageWriter
 
     path, n_frames, sleep, base = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4])
     with StageWriter(path, fps=24, materials=MATERIALS, particle_radius=0.01, format="both") as w:

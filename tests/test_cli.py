@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from warp_mpm_bubbles.cli import main
-from warp_mpm_bubbles.usd_output import read_frames
+from warp_mpm_bubbles.io.usd_output import read_frames
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

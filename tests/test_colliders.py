@@ -11,8 +11,8 @@ import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SceneError
-from warp_mpm_bubbles.scene_effects import Collider
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.scene.effects import Collider
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 G = 9.81
@@ -111,7 +111,7 @@ def test_colliders_are_written_to_the_usd_stage(tmp_path):
     # path the simulation used; the static glass is a mesh with its extent.
     from pxr import Usd, UsdGeom
 
-    from warp_mpm_bubbles.runner import run_scene
+    from warp_mpm_bubbles.io.runner import run_scene
 
     ball = Collider("sphere", center=(0.4, 0.5), radius=0.05, acceleration=(0.0, -G), stop=0.1)
     glass = Collider("glass", center=(0.12, 0.0), radius=0.1, height=0.3, wall_thickness=0.02)

@@ -10,8 +10,8 @@ import warp as wp
 
 from scenes import tank_2d
 from warp_mpm_bubbles import Material, Sphere
-from warp_mpm_bubbles.scene_effects import Collider, LiquidInflow
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.scene.effects import Collider, LiquidInflow
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 
@@ -61,7 +61,7 @@ def test_gas_is_an_effect_of_the_materials_used(tmp_path):
 
 
 def test_summary_lists_the_stages_that_ran(tmp_path):
-    from warp_mpm_bubbles.runner import run_scene
+    from warp_mpm_bubbles.io.runner import run_scene
 
     scene = tank_2d(cells=16, out=tmp_path / "t.usdc").replace_output(frames=1)
     scene.colliders = [Collider("box", center=(0.5, 0.2), size=(0.2, 0.1))]
@@ -78,7 +78,7 @@ def test_retired_particles_are_compacted_without_changing_the_results(tmp_path, 
     # compacts bit for bit, and every particle keeps its id.
     import numpy as np
 
-    import warp_mpm_bubbles.simulation as simulation
+    import warp_mpm_bubbles.core.simulation as simulation
 
     def run(compact):
         monkeypatch.setattr(simulation, "COMPACT_RETIRED", 0.1 if compact else 2.0)  # 15% of it vents

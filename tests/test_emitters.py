@@ -8,9 +8,9 @@ import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SceneError
-from warp_mpm_bubbles.checkpoint import load_checkpoint, save_checkpoint
-from warp_mpm_bubbles.scene_effects import GasInjector, LiquidInflow
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
+from warp_mpm_bubbles.scene.effects import GasInjector, LiquidInflow
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 DX = 0.01

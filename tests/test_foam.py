@@ -9,11 +9,11 @@ import warp as wp
 from pxr import Usd, UsdGeom
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
-from warp_mpm_bubbles.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID
-from warp_mpm_bubbles.runner import run_scene
-from warp_mpm_bubbles.scene_effects import Foam
-from warp_mpm_bubbles.simulation import Simulation
-from warp_mpm_bubbles.usd_output import INSTANCER, read_frames
+from warp_mpm_bubbles.core.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID
+from warp_mpm_bubbles.io.runner import run_scene
+from warp_mpm_bubbles.scene.effects import Foam
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.io.usd_output import INSTANCER, read_frames
 
 wp.config.quiet = True
 FOAM_KERNELS = {"advance_foam", "gas_to_foam"}

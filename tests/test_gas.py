@@ -8,7 +8,7 @@ import warp as wp
 
 from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 P_ATM = 101325.0

@@ -12,8 +12,8 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.diagnostics import bubble_volumes
-from warp_mpm_bubbles.scene_effects import SubgridBubbles
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.scene.effects import SubgridBubbles
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 G = 9.81
@@ -151,7 +151,7 @@ def test_gas_only_closed_box(tmp_path):
 
 
 def test_nan_in_the_state_stops_with_a_named_error(tmp_path):
-    from warp_mpm_bubbles.simulation import SimulationError
+    from warp_mpm_bubbles.core.simulation import SimulationError
 
     sim = Simulation(make(tmp_path, (0.2, 0.2), 0.01, [Box("water", (0.0, 0.0), (0.2, 0.1))]), "cpu")
     v = sim.v.numpy()

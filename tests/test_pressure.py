@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_mpm_bubbles.grid import EMPTY, FLUID, SOLID_FREE_SLIP
-from warp_mpm_bubbles.multigrid import MultigridPreconditioner
-from warp_mpm_bubbles.pressure import PRECONDITIONERS, PressureSolver, PressureSystem
+from warp_mpm_bubbles.core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
+from warp_mpm_bubbles.core.multigrid import MultigridPreconditioner
+from warp_mpm_bubbles.core.pressure import PRECONDITIONERS, PressureSolver, PressureSystem
 
 wp.config.quiet = True
 DEVICE = "cpu"

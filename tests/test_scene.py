@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from warp_mpm_bubbles.scene import (
+from warp_mpm_bubbles.scene.model import (
     Box, Cylinder, Domain, Material, Output, Scene, SceneError, SolverSettings, Sphere, WALL_TYPES,
     load_scene,
 )
@@ -390,7 +390,7 @@ def test_gas_material_defaults():
 
 
 def test_quality_presets_fill_unset_settings_and_the_scene_wins():
-    from warp_mpm_bubbles.quality import PRESETS
+    from warp_mpm_bubbles.scene.quality import PRESETS
 
     def scene(**solver):
         return Scene(Domain((0.4, 0.2), 0.02), {"w": Material("w")}, [Box("w", (0, 0), (0.4, 0.1))],
@@ -415,7 +415,7 @@ def test_quality_presets_fill_unset_settings_and_the_scene_wins():
 def test_quality_flag_rederives_grid_defaults_of_effects():
     # Sub-grid threshold and entrainment bubble radius default to the grid spacing: --quality
     # reference halves both, exactly as writing quality = "reference" in the file does.
-    from warp_mpm_bubbles.scene import tomllib  # tomli on Python 3.10
+    from warp_mpm_bubbles.scene.model import tomllib  # tomli on Python 3.10
 
     d = tomllib.loads((EXAMPLES / "plunge.toml").read_text())
     d.setdefault("solver", {})["quality"] = "reference"

@@ -7,7 +7,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from test_scene import good_dict
-from warp_mpm_bubbles.scene import Scene, SceneError
+from warp_mpm_bubbles.scene.model import Scene, SceneError
 
 # Values of every kind a TOML file (or a careless Python caller) can produce.
 JUNK = st.one_of(
@@ -66,7 +66,7 @@ def test_malformed_scenes_get_a_named_error(tmp_path_factory, mutations):
 def test_edited_scene_files_get_a_named_error(tmp_path_factory, edits):
     from test_scene import GOOD_TOML
 
-    from warp_mpm_bubbles.scene import load_scene
+    from warp_mpm_bubbles.scene.model import load_scene
 
     lines = GOOD_TOML.replace('"out/tank.usdc"', '"fuzz_out/tank.usdc"').splitlines()
     for position, action, text in edits:

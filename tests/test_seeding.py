@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from warp_mpm_bubbles.scene import (
+from warp_mpm_bubbles.scene.model import (
     Box, Cylinder, Domain, Material, Output, Scene, SceneError, SolverSettings, Sphere,
 )
-from warp_mpm_bubbles.seeding import seed_particles, slab_samples, sub_cells_per_axis
+from warp_mpm_bubbles.core.seeding import seed_particles, slab_samples, sub_cells_per_axis
 
 
 @pytest.fixture(autouse=True)

@@ -8,7 +8,7 @@ import pytest
 import warp as wp
 
 from scenes import dam_break_2d, tank_2d
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 G = 9.81

@@ -8,10 +8,10 @@ import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
-from warp_mpm_bubbles.checkpoint import load_checkpoint, save_checkpoint
-from warp_mpm_bubbles.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
-from warp_mpm_bubbles.scene_effects import Entrainment, Foam, SubgridBubbles
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
+from warp_mpm_bubbles.core.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
+from warp_mpm_bubbles.scene.effects import Entrainment, Foam, SubgridBubbles
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 L = 0.1

@@ -8,7 +8,7 @@ import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Cylinder, Domain, Material, Output, Scene
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 SIGMA, R = 0.072, 0.01
@@ -102,8 +102,8 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     # of fluid cells whose left half is gas: a gas particle in a liquid cell next to the gas moves
     # towards it by min(sqrt(2 sigma / (rho dx)) dt, dx/4); a gas particle with no gas cell in its
     # 3x3 neighbourhood, and any liquid particle, stay where they are.
-    from warp_mpm_bubbles.force_kernels import retract_gas_films
-    from warp_mpm_bubbles.grid import FLUID, PHASE_GAS, PHASE_LIQUID
+    from warp_mpm_bubbles.physics.tension import retract_gas_films
+    from warp_mpm_bubbles.core.grid import FLUID, PHASE_GAS, PHASE_LIQUID
 
     dx, n = 0.001, 8
     types = np.full((n, n, 1), FLUID, dtype=np.int32)

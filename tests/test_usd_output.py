@@ -12,7 +12,7 @@ from pxr import Usd, UsdGeom
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable with plain `pytest`, without installing the package
 
-from warp_mpm_bubbles.usd_output import StageWriter, read_frames  # noqa: E402
+from warp_mpm_bubbles.io.usd_output import StageWriter, read_frames  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _slow_writer import frame_data  # noqa: E402

@@ -7,7 +7,7 @@ import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings
-from warp_mpm_bubbles.simulation import Simulation
+from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 L, U, N, NU, T_END = 0.1, 0.01, 32, 1e-3, 0.5

@@ -27,11 +27,11 @@ __version__ = "0.1.0"
 def __getattr__(name):
     # Warp loads only when the simulator is used, so validating a scene stays instant.
     if name == "Simulation":
-        from .simulation import Simulation
+        from .core.simulation import Simulation
 
         return Simulation
     if name == "run_scene":
-        from .runner import run_scene
+        from .io.runner import run_scene
 
         return run_scene
     raise AttributeError(name)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .quality import PRESETS
-from .scene import SceneError, load_scene
+from .scene.quality import PRESETS
+from .scene.model import SceneError, load_scene
 
 
 def add_run_overrides(parser: argparse.ArgumentParser):
@@ -49,8 +49,8 @@ def _run(scene, args) -> int:
     import warp as wp  # deferred: `check` and bad scenes never start Warp
 
     wp.config.quiet = True
-    from .runner import run_scene
-    from .simulation import SimulationError
+    from .io.runner import run_scene
+    from .core.simulation import SimulationError
 
     try:
         run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume)
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     if args.command == "preview":
         from pathlib import Path
 
-        from .preview import render_preview
+        from .io.preview import render_preview
 
         frames = [int(f) for f in args.frames.split(",")] if args.frames else None
         png = args.png or str(Path(args.stage).with_suffix(".png"))
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
 
 
 def _check(path) -> int:
-    from .seeding import seed_particles
+    from .core.seeding import seed_particles
 
     scene = load_scene(path).validate()
     seeds = seed_particles(scene)

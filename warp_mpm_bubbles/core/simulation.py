@@ -28,10 +28,10 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
-from . import force_kernels as fk
+from ..physics import tension as fk
 from .grid import INTERFACE_SHARP, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
-from .scene import INTERFACES
+from ..scene.model import INTERFACES
 from .seeding import seed_particles
 from .timing import StageTimer
 from .transfer_kernels import (
@@ -85,7 +85,7 @@ class Simulation:
         self.frame = 0
         self.colliders = None
         if "colliders" in self.effects:
-            from .colliders import ColliderStage
+            from ..effects.colliders import ColliderStage
 
             self.colliders = ColliderStage(self)
         self._init_particles()
@@ -202,19 +202,19 @@ class Simulation:
         g, dev = self.grid, self.device
         self.foam = self.subgrid = self.entrainment = self.emitters = None
         if "emitters" in self.effects:
-            from .emitters import EmitterStage
+            from ..effects.emitters import EmitterStage
 
             self.emitters = EmitterStage(self)
         if "subgrid_bubbles" in self.effects:
-            from .subgrid import SubgridBubbleStage
+            from ..effects.subgrid import SubgridBubbleStage
 
             self.subgrid = SubgridBubbleStage(self, self.scene.effects["subgrid_bubbles"])
         if "entrainment" in self.effects:
-            from .entrainment import EntrainmentStage
+            from ..effects.entrainment import EntrainmentStage
 
             self.entrainment = EntrainmentStage(self, self.scene.effects["entrainment"])
         if "foam" in self.effects:
-            from .foam import FoamStage
+            from ..effects.foam import FoamStage
 
             self.foam = FoamStage(self, self.scene.effects["foam"])
         materials = list(self.scene.materials.values())

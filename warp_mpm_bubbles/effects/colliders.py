@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
-from .grid_kernels import cell_centre, unit
-from .transfer_kernels import clamp_to_domain
+from ..core.grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
+from ..core.grid_kernels import cell_centre, unit
+from ..core.transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
 

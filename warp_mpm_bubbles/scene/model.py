@@ -20,10 +20,10 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from .scene_checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
+from .checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
-from .scene_effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
-from .seeding import shape_seeds_particles
+from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
+from ..core.seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
 WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from . import grid_kernels as gk
-from .grid import EMPTY, FLUID, PHASE_LIQUID
+from ..core import grid_kernels as gk
+from ..core.grid import EMPTY, FLUID, PHASE_LIQUID
 
 wp.set_module_options({"enable_backward": False})
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
-from .grid import PHASE_GAS, sphere_radius
-from .simulation import Simulation, SimulationError
+from ..core.grid import PHASE_GAS, sphere_radius
+from ..core.simulation import Simulation, SimulationError
 from .usd_colliders import write_colliders
 from .usd_output import StageWriter
 

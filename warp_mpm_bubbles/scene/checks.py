@@ -1,5 +1,5 @@
 """Checking scene input: one SceneError per refusal, naming the file, the key path, the value
-given and what is allowed (shared by scene.py and scene_effects.py)."""
+given and what is allowed (shared by model.py and effects.py)."""
 from __future__ import annotations
 
 import difflib

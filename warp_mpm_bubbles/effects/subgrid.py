@@ -41,9 +41,9 @@ import math
 import numpy as np
 import warp as wp
 
-from . import grid_kernels as gk
-from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, sphere_radius
-from .transfer_kernels import (
+from ..core import grid_kernels as gk
+from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, sphere_radius
+from ..core.transfer_kernels import (
     GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
     make_stencil, wall_stopped,
 )

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .scene_effects import GasInjector, LiquidInflow
+from ..scene.effects import GasInjector, LiquidInflow
 
 
 def _perpendicular_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

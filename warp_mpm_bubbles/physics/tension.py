@@ -8,11 +8,11 @@
 
 import warp as wp
 
-from .grid import PHASE_GAS, SOLID_NO_SLIP
-from .grid_kernels import (
+from ..core.grid import PHASE_GAS, SOLID_NO_SLIP
+from ..core.grid_kernels import (
     block_offset, block_size, cell_centre, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
-from .transfer_kernels import clamp_to_domain
+from ..core.transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
 

@@ -26,9 +26,9 @@ import math
 
 import warp as wp
 
-from . import grid_kernels as gk
-from .grid import PHASE_FOAM, PHASE_GAS
-from .transfer_kernels import (
+from ..core import grid_kernels as gk
+from ..core.grid import PHASE_FOAM, PHASE_GAS
+from ..core.transfer_kernels import (
     CELL_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, make_stencil, wall_stopped,
 )
 

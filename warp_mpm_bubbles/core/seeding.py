@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # runtime import would be circular (scene.py uses this module)
-    from .scene import Domain, Scene
+    from ..scene.model import Domain, Scene
 
 
 def sub_cells_per_axis(ppc: int, dim: int) -> int:

@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .scene_checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
+from .checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
 
 BOUNDARIES = ("no_slip", "free_slip")
 MAX_BUBBLE_RATE = 1.0e5  # bubbles per second from one gas injector

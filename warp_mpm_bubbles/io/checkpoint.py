@@ -49,7 +49,7 @@ def save_checkpoint(sim, path) -> None:
 
 def load_checkpoint(sim, path) -> None:
     """Restore a checkpoint into a freshly built Simulation of the same scene."""
-    from .simulation import SimulationError
+    from ..core.simulation import SimulationError
 
     with np.load(path) as data:
         if str(data["fingerprint"]) != _fingerprint(sim.scene):

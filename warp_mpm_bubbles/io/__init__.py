@@ -1,0 +1,1 @@
+"""Running a scene to files: the frame loop and summary (runner), USD output, checkpoints, previews."""

@@ -42,18 +42,18 @@ def layer(tmp_path_factory):
     sim = Simulation(layer_scene(tmp_path_factory.mktemp("foam")), "cpu")
     n = sim.num_particles
     budget0 = sim.gas_budget()
-    gas0 = int((sim.phase.numpy()[:n] == PHASE_GAS).sum())
+    gas0 = int((sim.particles.phase.numpy()[:n] == PHASE_GAS).sum())
     birth, death = np.full(n, np.nan), np.full(n, np.nan)
     times, alive, totals, heights = [], [], [], []
     while sim.time < 4 * TAU:
         sim.advance_to(sim.time + sim.stable_dt() * 0.9999)  # one step at a time
-        phase, active = sim.phase.numpy()[:n], sim.active.numpy()[:n]
+        phase, active = sim.particles.phase.numpy()[:n], sim.particles.active.numpy()[:n]
         birth[(phase == PHASE_FOAM) & np.isnan(birth)] = sim.time
         death[(phase == PHASE_FOAM) & (active == 0) & np.isnan(death)] = sim.time
         times.append(sim.time)
         alive.append(((phase == PHASE_FOAM) & (active == 1)).sum())
         totals.append(sim.gas_budget()["total"])
-        heights.append(sim.x.numpy()[:n][(phase == PHASE_FOAM) & (active == 1), 1].copy())
+        heights.append(sim.particles.x.numpy()[:n][(phase == PHASE_FOAM) & (active == 1), 1].copy())
     return dict(sim=sim, n=n, gas0=gas0, birth=birth, death=death, t=np.array(times), alive=np.array(alive),
                 totals=np.array(totals), heights=heights, budget0=budget0)
 
@@ -67,10 +67,10 @@ def test_gas_in_open_air_becomes_foam(layer):
     born = ~np.isnan(birth)
     assert (birth[born] < 0.035).sum() >= 0.85 * layer["gas0"] > 850
     assert born.sum() >= 0.92 * layer["gas0"]
-    left = (sim.phase.numpy()[:n] == PHASE_GAS) & (sim.active.numpy()[:n] == 1)
+    left = (sim.particles.phase.numpy()[:n] == PHASE_GAS) & (sim.particles.active.numpy()[:n] == 1)
     assert born.sum() + left.sum() == layer["gas0"]
     top_cell = math.floor(H / DX)  # the top water row: the ceiling of every column
-    assert (np.floor(sim.x.numpy()[:n][left, 1] / DX) == top_cell).all()
+    assert (np.floor(sim.particles.x.numpy()[:n][left, 1] / DX) == top_cell).all()
 
 
 def test_foam_counts_follow_the_set_lifetime(layer):
@@ -148,8 +148,8 @@ def test_foam_on_changes_only_what_becomes_of_the_surfaced_gas(tmp_path):
     off, on = runs[False], runs[True]
     n = off.num_particles
     assert on.num_particles == n and on.stats.dt_history == off.stats.dt_history
-    phase_on, phase_off = on.phase.numpy()[:n], off.phase.numpy()[:n]
-    active_off = off.active.numpy()[:n]
+    phase_on, phase_off = on.particles.phase.numpy()[:n], off.particles.phase.numpy()[:n]
+    active_off = off.particles.active.numpy()[:n]
     foamed = phase_on == PHASE_FOAM
     vented = (phase_off == PHASE_GAS) & (active_off == 0)
     assert foamed.sum() > 20 and np.array_equal(foamed, vented)
@@ -157,7 +157,7 @@ def test_foam_on_changes_only_what_becomes_of_the_surfaced_gas(tmp_path):
     assert (phase_on[same] != PHASE_FOAM).all() and (phase_on[same] == PHASE_LIQUID).sum() > 0
     for name in ("x", "v", "J", "C", "active", "material"):
         assert np.array_equal(getattr(on, name).numpy()[:n][same], getattr(off, name).numpy()[:n][same]), name
-    assert (on.material.numpy()[:n][foamed] == list(on.scene.materials).index("foam")).all()
+    assert (on.particles.material.numpy()[:n][foamed] == list(on.scene.materials).index("foam")).all()
     # The gas's mass: foam plus burst on one side, vented on the other; both totals exact.
     b_on, b_off = on.gas_budget(), off.gas_budget()
     assert b_on["foam"] > 0.0 and b_on["vented"] > 0.0 and b_off["foam"] == 0.0

@@ -220,7 +220,7 @@ def test_liquid_only_scene_runs_no_gas_stage(tmp_path):
     sim = Simulation(scene, "cpu")
     sim.step(sim.stable_dt())
     assert not sim.has_gas and "vent" not in sim.timer.stages_run
-    assert sim.gas_volume.shape == (1, 1, 1)  # gas arrays are placeholders, never read
+    assert sim.fields.gas_volume.shape == (1, 1, 1)  # gas arrays are placeholders, never read
 
 
 # ------------------------------------- isothermal collapse to the first radius minimum (DESIGN §5)

@@ -106,9 +106,9 @@ def test_requested_step_100_times_the_stable_one_is_clamped(tmp_path):
 
 def test_particles_starting_exactly_on_walls(tmp_path):
     sim = Simulation(make(tmp_path, (0.2, 0.2), 0.01, [Box("water", (0.0, 0.0), (0.2, 0.1))]), "cpu")
-    x = sim.x.numpy()
+    x = sim.particles.x.numpy()
     x[:50, 0], x[50:100, 0], x[100:150, 1] = 0.0, 0.2, 0.0  # on the left, right and bottom walls
-    sim.x = wp.array(x, dtype=wp.vec3, device=sim.device)
+    sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
     sim.advance_to(0.1)
     assert_sane(sim)
 
@@ -154,9 +154,9 @@ def test_nan_in_the_state_stops_with_a_named_error(tmp_path):
     from warp_mpm_bubbles.core.simulation import SimulationError
 
     sim = Simulation(make(tmp_path, (0.2, 0.2), 0.01, [Box("water", (0.0, 0.0), (0.2, 0.1))]), "cpu")
-    v = sim.v.numpy()
+    v = sim.particles.v.numpy()
     v[7] = np.nan
-    sim.v = wp.array(v, dtype=wp.vec3, device=sim.device)
+    sim.particles.v = wp.array(v, dtype=wp.vec3, device=sim.device)
     with pytest.raises(SimulationError, match=r"step 1 .*1 particles entered p2g with a non-finite"):
         sim.step(sim.stable_dt())
 

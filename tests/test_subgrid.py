@@ -58,7 +58,7 @@ def liquid_velocity_y(sim, x):
     w = [np.array([0.5 * (1.5 - a) ** 2, 0.75 - (a - 1.0) ** 2, 0.5 * (a - 0.5) ** 2]) for a in f]
     if g.dim == 2:
         base[2], w[2] = 0, np.array([1.0, 0.0, 0.0])
-    vel = sim.vel[1].numpy()
+    vel = sim.fields.vel[1].numpy()
     return sum(w[0][i] * w[1][j] * w[2][k] * vel[base[0] + i, base[1] + j, base[2] + k]
                for i in range(3) for j in range(3) for k in range(3 if g.dim == 3 else 1))
 
@@ -69,11 +69,11 @@ def rise(sim, index, t_end, every=0.02):
     t, y, J, u_l = [], [], [], []
     while sim.time < t_end - 1e-9:
         sim.advance_to(sim.time + every)
-        assert sim.phase.numpy()[index] == PHASE_SUBGRID and sim.active.numpy()[index] == 1
-        x, v = sim.x.numpy()[index], sim.v.numpy()[index]
+        assert sim.particles.phase.numpy()[index] == PHASE_SUBGRID and sim.particles.active.numpy()[index] == 1
+        x, v = sim.particles.x.numpy()[index], sim.particles.v.numpy()[index]
         t.append(sim.time)
         y.append(float(x[1]))
-        J.append(float(sim.J.numpy()[index]))
+        J.append(float(sim.particles.J.numpy()[index]))
         u_l.append(liquid_velocity_y(sim, x - sim.stats.dt_history[-1] * v))  # where the drag was computed
     return np.array(t), np.array(y), np.array(J), np.array(u_l)
 
@@ -86,7 +86,7 @@ def test_a_bubble_rises_at_its_drag_law_terminal_speed_3d(tmp_path):
     # the liquid around it upward (two-way), which adds to its rise: measured +0.09% at 16^3. Bound 0.5%.
     sim = Simulation(tank(tmp_path, dim=3, cells=16, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
     r0 = 5.0e-4
-    i = sim.subgrid.add_bubbles(sim, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     window = t >= 0.1  # the drag relaxes in m_eff / k ~ 6 ms; the co-flow takes a little longer
     speed = np.polyfit(t[window], y[window], 1)[0]
@@ -105,7 +105,7 @@ def test_large_steps_stay_stable_and_the_drag_uses_the_liquids_viscosity(tmp_pat
     scene = tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}, cfl=2.0, viscosity=2.0e-3)
     sim = Simulation(scene, "cpu")
     r0 = 5.0e-4
-    i = sim.subgrid.add_bubbles(sim, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     assert max(sim.stats.dt_history) > 0.015
     window = t >= 0.1
@@ -127,15 +127,15 @@ def test_gathered_subgrid_bubbles_become_resolved_gas_with_their_mass(tmp_path):
     dx = sim.grid.dx
     rng = np.random.default_rng(1)
     pos = np.array([0.05, 0.04]) + rng.uniform(-dx, dx, (40, 2))
-    sub = sim.subgrid.add_bubbles(sim, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
+    sub = sim.stage("subgrid_bubbles").add_bubbles(sim, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
     before, _ = budget_parts(sim)
     n_before = sim.num_particles
     sim.step(1e-3)
     after, _ = budget_parts(sim)
-    assert sim.subgrid.conversions["gathered"] == 1
-    assert not sim.active.numpy()[sub].any()  # every sub-grid bubble was taken
+    assert sim.stage("subgrid_bubbles").conversions["gathered"] == 1
+    assert not sim.particles.active.numpy()[sub].any()  # every sub-grid bubble was taken
     new = slice(n_before, sim.num_particles)
-    assert (sim.phase.numpy()[new] == PHASE_GAS).all()
+    assert (sim.particles.phase.numpy()[new] == PHASE_GAS).all()
     volume = 40 * 4.0 / 3.0 * math.pi * 1.0e-3**3
     assert sim.num_particles - n_before == round(volume / (dx**3 / 4))  # at the seeding density
     assert after["total"] == pytest.approx(before["total"], rel=1e-12, abs=0.0)
@@ -161,14 +161,14 @@ def test_a_small_resolved_bubble_becomes_one_subgrid_bubble_and_mass_stays_exact
     scene = tank(tmp_path, shapes=[Sphere("air", center=(0.05, 0.03), radius=1.5 * dx)], depth=0.06,
                  effects={"subgrid_bubbles": SubgridBubbles(radius=2 * dx, convert_every=1)})
     sim = Simulation(scene, "cpu")
-    gas = np.flatnonzero(sim.phase.numpy()[: sim.num_particles] == PHASE_GAS)
+    gas = np.flatnonzero(sim.particles.phase.numpy()[: sim.num_particles] == PHASE_GAS)
     n_before = sim.num_particles
     before, _ = budget_parts(sim)
     sim.step(1e-3)
     after, _ = budget_parts(sim)
-    assert sim.subgrid.conversions["shrunk"] == 1
-    assert not sim.active.numpy()[gas].any()
-    assert sim.num_particles == n_before + 1 and sim.phase.numpy()[n_before] == PHASE_SUBGRID
+    assert sim.stage("subgrid_bubbles").conversions["shrunk"] == 1
+    assert not sim.particles.active.numpy()[gas].any()
+    assert sim.num_particles == n_before + 1 and sim.particles.phase.numpy()[n_before] == PHASE_SUBGRID
     assert after["inside"] == 0.0 and after["subgrid"] == pytest.approx(before["inside"], rel=2**-23)
     assert abs(after["rounding"]) <= 2**-23 * before["inside"]
     assert after["total"] == pytest.approx(before["total"], rel=1e-12, abs=0.0)
@@ -196,31 +196,31 @@ def test_entrainment_seeds_bubbles_in_a_splash_and_none_in_a_resting_tank(tmp_pa
         sim = Simulation(splash_scene(tmp_path), "cpu")
         first, seeds = None, []
         while sim.time < 0.03:
-            n0, seeded = sim.num_particles, sim.entrainment.seeded
+            n0, seeded = sim.num_particles, sim.stage("entrainment").seeded
             sim.advance_to(sim.time + sim.stable_dt() * 0.9999)  # one step
             # Seeds are appended first (then any gas from gathered bubbles); as seeded, moved one step.
-            seeds.append(sim.x.numpy()[n0: n0 + sim.entrainment.seeded - seeded].copy())
-            if first is None and sim.entrainment.seeded:
+            seeds.append(sim.particles.x.numpy()[n0: n0 + sim.stage("entrainment").seeded - seeded].copy())
+            if first is None and sim.stage("entrainment").seeded:
                 first = sim.time
         runs.append(sim)
     sim = runs[0]
     # None while the block falls as one piece (uniform velocity: no trapped air); from impact on
     # (it falls 1.5 cm in 7 ms) bubbles are seeded: measured the first at 6.3 ms, 28 by 30 ms.
     assert 0.005 < first < 0.009, first
-    assert sim.entrainment.seeded >= 10
+    assert sim.stage("entrainment").seeded >= 10
     # Where the block hit the pool (surface y = 0.03, block x = 0.04 .. 0.06) and where the splash
     # spreads from there: measured |x - 0.05| <= 0.020, |y - 0.03| <= 0.006 (1.8 cells).
     seeds = np.concatenate(seeds)
-    assert len(seeds) == sim.entrainment.seeded
+    assert len(seeds) == sim.stage("entrainment").seeded
     assert np.abs(seeds[:, 0] - 0.05).max() < 0.025 and np.abs(seeds[:, 1] - 0.03).max() < 0.01
     # The run repeats bit for bit (seeds hash the scene seed, the step and the cell).
     n = sim.num_particles
     other = runs[1]
-    assert other.num_particles == n and np.array_equal(other.x.numpy()[:n], sim.x.numpy()[:n])
+    assert other.num_particles == n and np.array_equal(other.particles.x.numpy()[:n], sim.particles.x.numpy()[:n])
     resting = Simulation(splash_scene(tmp_path, falling=False), "cpu")
     n_resting = resting.num_particles
     resting.advance_to(0.1)
-    assert resting.entrainment.seeded == 0 and resting.num_particles == n_resting
+    assert resting.stage("entrainment").seeded == 0 and resting.num_particles == n_resting
     assert resting.launches["trapped_air"] == resting.stats.steps  # it ran and found nothing
 
 
@@ -236,7 +236,7 @@ def test_effects_off_launch_nothing_and_on_change_nothing_without_bubbles(tmp_pa
         for _ in range(20):
             sim.step(sim.stable_dt())
     off, on = sims[False], sims[True]
-    assert on.subgrid.conversions == {"gathered": 0, "shrunk": 0} and on.entrainment.seeded == 0
+    assert on.stage("subgrid_bubbles").conversions == {"gathered": 0, "shrunk": 0} and on.stage("entrainment").seeded == 0
     n = off.num_particles
     assert on.num_particles == n
     for name in ("x", "v", "J", "active", "phase"):
@@ -262,7 +262,7 @@ def test_resume_from_a_checkpoint_repeats_the_run(tmp_path):
     for sim in (a, b):
         sim.advance_to(0.04)
     n = a.num_particles
-    phase = a.phase.numpy()[:n]
+    phase = a.particles.phase.numpy()[:n]
     assert (phase == PHASE_SUBGRID).any() and (phase == PHASE_FOAM).any()  # both effects had work
     assert b.num_particles == n and b.gas_budget() == a.gas_budget()
     for name in ("x", "v", "phase", "active", "subgrid_impulse", "foam_life"):

@@ -29,7 +29,7 @@ def taylor_green_amplitude(tmp_path, viscosity):
         m[:, 0], m[:, 1] = np.sin(kx) * np.cos(ky), -np.cos(kx) * np.sin(ky)
         return m
 
-    sim.v = wp.array((U * mode(sim.x.numpy())).astype(np.float32), dtype=wp.vec3, device=sim.device)
+    sim.particles.v = wp.array((U * mode(sim.particles.x.numpy())).astype(np.float32), dtype=wp.vec3, device=sim.device)
     sim.advance_to(T_END)
     p = sim.particles_numpy()
     m = mode(p["positions"])

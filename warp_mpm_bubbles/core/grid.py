@@ -27,9 +27,12 @@ PHASE_GAS = 1
 PHASE_FOAM = 2
 PHASE_SUBGRID = 3
 
-# Gas-liquid interface methods, as indices of scene.INTERFACES.
-INTERFACE_SHARP = 0
-INTERFACE_BASELINE = 1
+# Gas-liquid interface methods ([solver].interface): ghost-fluid gas-liquid faces, or the published
+# "any gas particle makes a gas cell"; the kernels take the index.
+INTERFACES = ("sharp", "baseline")
+INTERFACE_SHARP, INTERFACE_BASELINE = range(2)
+# Pressure preconditioners ([solver].preconditioner); the solver's kernels take the index.
+PRECONDITIONERS = ("none", "jacobi", "multigrid")
 
 # Wall-type indices as in scene.WALL_TYPES.
 WALL_NO_SLIP = 0
@@ -40,6 +43,38 @@ WALL_OPEN = 2
 def sphere_radius(volume):
     """Radius of the sphere of this volume: a bubble's, in 2D runs too (sub-grid bubbles are real)."""
     return np.cbrt(0.75 * np.asarray(volume, np.float64) / np.pi)
+
+
+def connected_labels(cells: np.ndarray, dim: int, faces_only: bool = False) -> np.ndarray:
+    """Labels of the connected groups of the cells in `cells`, an (m, dim) integer array, one row
+    per occupied cell; labels are the smallest row of the group. Cells touching by faces, edges or
+    corners connect (sub-grid bubbles gather), or by faces only (faces_only: diagnostics' bubbles)."""
+    m = len(cells)
+    label = np.arange(m)
+    if m < 2:
+        return label
+    span = cells.max(axis=0) + 3  # room for a neighbour on either side
+    key = np.ravel_multi_index((cells + 1).T, span)  # +1: a neighbour of row 0 stays >= 0
+    order = np.argsort(key)
+    ii, jj = [], []
+    for off in np.ndindex(*(3,) * dim):
+        off = np.array(off) - 1
+        if tuple(off) <= (0,) * dim or (faces_only and np.abs(off).sum() != 1):  # each pair once
+            continue
+        nb = np.ravel_multi_index((cells + 1 + off).T, span)
+        pos = np.searchsorted(key, nb, sorter=order).clip(0, m - 1)
+        hit = key[order[pos]] == nb
+        ii.append(np.flatnonzero(hit))
+        jj.append(order[pos[hit]])
+    ii, jj = np.concatenate(ii), np.concatenate(jj)
+    while True:  # min-label propagation with pointer jumping
+        new = label.copy()
+        np.minimum.at(new, ii, label[jj])
+        np.minimum.at(new, jj, label[ii])
+        new = new[new]
+        if np.array_equal(new, label):
+            return label
+        label = new
 
 
 @dataclass(frozen=True)

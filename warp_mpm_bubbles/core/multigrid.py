@@ -44,7 +44,7 @@ import math
 import warp as wp
 
 from .grid import EMPTY, FLUID
-from .grid_kernels import at
+from .grid_kernels import at, unit
 
 wp.set_module_options({"enable_backward": False})
 
@@ -72,11 +72,6 @@ class Level:
     scale: float
     dim: int
     finest: int
-
-
-@wp.func
-def unit(axis: int):
-    return wp.vec3i(int(axis == 0), int(axis == 1), int(axis == 2))
 
 
 @wp.func

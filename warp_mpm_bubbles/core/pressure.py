@@ -19,13 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .grid import EMPTY, FLUID
+from .grid import EMPTY, FLUID, PRECONDITIONERS
 from .multigrid import MultigridPreconditioner
 
 wp.set_module_options({"enable_backward": False})
 
-PRECONDITIONERS = ("none", "jacobi", "multigrid")
-NONE, JACOBI, MULTIGRID = range(3)
+NONE, JACOBI, MULTIGRID = range(3)  # indices of PRECONDITIONERS
 
 
 @wp.func

@@ -8,12 +8,9 @@ shape receives particles, with exactly the samples the full seeding produces.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # runtime import would be circular (scene.py uses this module)
-    from ..scene.model import Domain, Scene
 
 
 def sub_cells_per_axis(ppc: int, dim: int) -> int:

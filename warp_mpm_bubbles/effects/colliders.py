@@ -13,6 +13,7 @@ import numpy as np
 import warp as wp
 
 from ..core.grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
+from ..core.stage import Stage
 from ..core.grid_kernels import cell_centre, unit
 from ..core.transfer_kernels import clamp_to_domain
 
@@ -219,34 +220,51 @@ def _shape(collider, dim: int) -> Shape:
     return s
 
 
-class ColliderStage:
-    """The scene's colliders on the device; `Simulation` calls it at three points of the step."""
+class ColliderStage(Stage):
+    """[[colliders]] on the device: solid cells after the cells are classified, moving colliders'
+    velocities on their faces (and again on every extended field), particles pushed out last."""
 
-    def __init__(self, sim):
+    name = "colliders"
+
+    def __init__(self, sim, settings=None):
+        super().__init__(sim, settings)
         self.dim = sim.grid.dim
-        self.shapes = wp.array([_shape(c, self.dim) for c in sim.scene.colliders], dtype=Shape, device=sim.device)
-        self.moving = any(c.moves for c in sim.scene.colliders)
+        self.colliders = sim.scene.colliders
+        self.shapes = wp.array([_shape(c, self.dim) for c in self.colliders], dtype=Shape, device=sim.device)
+        self.moving = any(c.moves for c in self.colliders)
         self.collider_of_cell = wp.zeros(sim.grid.cells, dtype=wp.int32, device=sim.device)
+
+    def hooks(self) -> set[str]:
+        hooks = super().hooks()
+        if not self.moving:  # a static collider's faces are walls: the grid's zero already holds
+            hooks -= {"on_faces", "on_extended"}
+        return hooks
+
+    def incoming_speed(self, t0: float, t1: float) -> float:
+        return max(c.speed_between(t0, t1) for c in self.colliders)
 
     def inside(self, sim, positions: np.ndarray, t: float = 0.0) -> np.ndarray:
         """Which of these points are inside a collider at time t (seeding drops them)."""
         x = wp.array(np.asarray(positions, np.float32), dtype=wp.vec3, device=sim.device)
         out = wp.zeros(len(positions), dtype=wp.int32, device=sim.device)
-        sim._launch(inside_any_collider, len(positions), [self.shapes, x, t, self.dim, out])
+        sim.launch(inside_any_collider, len(positions), [self.shapes, x, t, self.dim, out])
         return out.numpy().astype(bool)
 
-    def mark_cells(self, sim, t: float):
+    def on_cells(self, sim, dt: float):
         g = sim.grid
-        sim._launch(mark_collider_cells, g.cells,
-                    [self.shapes, t, sim._origin, g.dx, g.dim, sim.types, self.collider_of_cell])
+        sim.launch(mark_collider_cells, g.cells,
+                   [self.shapes, sim.time, sim.origin, g.dx, g.dim, sim.fields.types, self.collider_of_cell])
 
-    def set_face_velocities(self, sim, t: float, vel=None):
-        """Moving colliders' velocity on the faces they touch (of `vel`, default the grid's field)."""
-        if self.moving:
-            for a in sim.grid.axes:
-                sim._launch(moving_collider_faces, sim.grid.face_shape(a),
-                            [self.shapes, self.collider_of_cell, t, a, (vel or sim.vel)[a]])
+    def on_faces(self, sim, dt: float):
+        self.on_extended(sim, sim.fields.vel)
 
-    def push_out(self, sim, t: float):
-        sim._launch(push_out_of_colliders, sim.num_particles,
-                    [self.shapes, t, sim.grid.dx, sim.grid.dim, sim._domain_hi, sim.active, sim.x, sim.v])
+    def on_extended(self, sim, vel):
+        """Moving colliders' velocity on the faces they touch, of this face field."""
+        for a in sim.grid.axes:
+            sim.launch(moving_collider_faces, sim.grid.face_shape(a),
+                       [self.shapes, self.collider_of_cell, sim.time, a, vel[a]])
+
+    def end_step(self, sim, dt: float):
+        p = sim.particles
+        sim.launch(push_out_of_colliders, p.count,
+                   [self.shapes, sim.time + dt, sim.grid.dx, sim.grid.dim, sim.domain_hi, p.active, p.x, p.v])

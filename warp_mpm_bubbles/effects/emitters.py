@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ..core.stage import Stage
 from ..scene.effects import GasInjector, LiquidInflow
 
 
@@ -35,8 +36,14 @@ def _lattice_in_ball(radius: float, spacing: float, dim: int, rng) -> np.ndarray
     return pts if len(pts) else np.zeros((1, dim))
 
 
-class EmitterStage:
-    def __init__(self, sim):
+class EmitterStage(Stage):
+    """[[emitters]]: particles added at the start of each step; their speed enters the CFL limit
+    before any particle has it."""
+
+    name = "emitters"
+
+    def __init__(self, sim, settings=None):
+        super().__init__(sim, settings)
         scene = sim.scene
         self.dim = scene.dim
         self.dx = scene.domain.dx
@@ -54,7 +61,11 @@ class EmitterStage:
     def _vector(self, v) -> np.ndarray:
         return np.array(tuple(v) + ((0.0,) if self.dim == 2 else ()), float)
 
-    def emit(self, sim, t: float, dt: float):
+    def incoming_speed(self, t0: float, t1: float) -> float:
+        return max(e.speed_between(t0, t1) for e in self.emitters)
+
+    def begin_step(self, sim, dt: float):
+        t = sim.time
         state = sim.host_state["emitters"]
         for i, e in enumerate(self.emitters):
             stop = math.inf if e.stop is None else e.stop
@@ -103,8 +114,9 @@ class EmitterStage:
             offset[: self.dim] = u / np.linalg.norm(u) * e.spread * rng.random() ** (1.0 / self.dim)
         centre = self._point(e.center) + offset
         velocity = self._vector(e.velocity)
-        if sim.subgrid and radius < sim.scene.effects["subgrid_bubbles"].radius:
-            sim.subgrid.add_bubbles(sim, centre[None], np.array([radius]), velocity[None],
+        bubbles = sim.stage("subgrid_bubbles")
+        if bubbles and radius < bubbles.settings.radius:
+            bubbles.add_bubbles(sim, centre[None], np.array([radius]), velocity[None],
                                     self.materials.index(e.material))
             return
         pts = _lattice_in_ball(radius, self.spacing, self.dim, rng)

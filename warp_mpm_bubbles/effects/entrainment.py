@@ -15,6 +15,8 @@ import warp as wp
 
 from ..core import grid_kernels as gk
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID
+from ..core.stage import Stage
+from ..scene.effects import Entrainment
 
 wp.set_module_options({"enable_backward": False})
 
@@ -105,11 +107,15 @@ def trapped_air(
             spawn_v[slot] = u_c
 
 
-class EntrainmentStage:
-    """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them."""
+class EntrainmentStage(Stage):
+    """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them
+    (through that stage's add_bubbles)."""
+
+    name = "entrainment"
+    Settings = Entrainment
 
     def __init__(self, sim, settings):
-        self.settings = settings
+        super().__init__(sim, settings)
         self._capacity = 0
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
 
@@ -121,8 +127,8 @@ class EntrainmentStage:
         self._x = wp.zeros(capacity, dtype=wp.vec3, device=dev)
         self._v = wp.zeros(capacity, dtype=wp.vec3, device=dev)
 
-    def step(self, sim, dt: float):
-        s, g = self.settings, sim.grid
+    def after_g2p(self, sim, dt: float):
+        s, g, f = self.settings, sim.grid, sim.fields
         if s.rate == 0.0:
             return
         if self._capacity == 0:
@@ -131,9 +137,9 @@ class EntrainmentStage:
         seed = (int(sim.scene.solver.seed) * 1_000_003 + (sim.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
         for _ in range(2):  # a second launch only if the buffer was too small
             self._count.zero_()
-            sim._launch(trapped_air, g.cells,
-                        [sim.types, sim.phase_cells, *sim.vel, sim._origin, g.dx, g.dim, dt, s.min_speed,
-                         s.max_speed, s.rate, seed, self._capacity, self._count, self._key, self._x, self._v])
+            sim.launch(trapped_air, g.cells,
+                       [f.types, f.phase_cells, *f.vel, sim.origin, g.dx, g.dim, dt, s.min_speed,
+                        s.max_speed, s.rate, seed, self._capacity, self._count, self._key, self._x, self._v])
             count = int(self._count.numpy()[0])
             if count <= self._capacity:
                 break
@@ -143,6 +149,6 @@ class EntrainmentStage:
         order = np.argsort(self._key.numpy()[:count], kind="stable")
         positions = self._x.numpy()[:count][order]
         velocities = self._v.numpy()[:count][order]
-        sim.subgrid.add_bubbles(sim, positions, np.full(count, s.bubble_radius), velocities,
-                                sim.subgrid.gas_material)
+        bubbles = sim.stage("subgrid_bubbles")
+        bubbles.add_bubbles(sim, positions, np.full(count, s.bubble_radius), velocities, bubbles.gas_material)
         self.seeded += count

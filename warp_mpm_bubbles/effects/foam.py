@@ -28,6 +28,8 @@ import warp as wp
 
 from ..core import grid_kernels as gk
 from ..core.grid import PHASE_FOAM, PHASE_GAS
+from ..core.stage import Stage
+from ..scene.effects import Foam
 from ..core.transfer_kernels import (
     CELL_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, make_stencil, wall_stopped,
 )
@@ -146,32 +148,34 @@ def gas_to_foam(
     life[p] = -mean_life * wp.log(1.0 - wp.randf(state))  # exponential; randf is in [0, 1)
 
 
-class FoamStage:
-    """[effects.foam]: `step` runs after g2p in place of the vent stage."""
+class FoamStage(Stage):
+    """[effects.foam]: after g2p, in place of the gas stage's venting (which then does not run)."""
+
+    name = "foam"
+    Settings = Foam
 
     def __init__(self, sim, settings):
-        self.settings = settings
+        super().__init__(sim, settings)
         self.material = list(sim.scene.materials).index(settings.material)
-        sim.add_particle_field("foam_life", float)  # seconds left; checkpointed with the particles
-        g = sim._gravity
+        sim.particles.add_field("foam_life", float)  # seconds left; checkpointed with the particles
+        g = sim.gravity
         g_mag = math.sqrt(sum(a * a for a in g))
         self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
         self._seed = int(sim.scene.solver.seed) & 0x7FFFFFFF
 
-    def step(self, sim, dt: float):
+    def after_g2p(self, sim, dt: float):
         if not sim.has_gas:
             return  # no gas, nothing ever becomes foam
-        g = sim.grid
+        g, f, p = sim.grid, sim.fields, sim.particles
         self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
-        up_axis, up_sign = sim._up
-        sim._launch(gas_to_foam, sim.num_particles,
-                    [sim.types, sim.ceiling, up_axis, up_sign, sim._origin, g.dx, g.dim, self.material,
-                     self.settings.lifetime, self._seed, sim.x, sim.active, sim.phase, sim.material, sim.ids,
-                     sim.foam_life])
+        up_axis, up_sign = sim.up
+        sim.launch(gas_to_foam, p.count,
+                   [f.types, f.ceiling, up_axis, up_sign, sim.origin, g.dx, g.dim, self.material,
+                    self.settings.lifetime, self._seed, p.x, p.active, p.phase, p.material, p.ids, p.foam_life])
 
     def advance(self, sim, dt: float):
-        g = sim.grid
-        sim._launch(advance_foam, sim.num_particles,
-                    [*sim.vel, sim.liq_volume, sim.types, sim._origin, g.dx, g.dim, dt, sim._domain_hi,
-                     wp.vec3(*sim._gravity), self._up, self.settings.rise_speed, sim.phase, sim.mass,
-                     sim.foam_life, sim.x, sim.v, sim.active, sim.vented_mass])
+        g, f, p = sim.grid, sim.fields, sim.particles
+        sim.launch(advance_foam, p.count,
+                   [*f.vel, f.liq_volume, f.types, sim.origin, g.dx, g.dim, dt, sim.domain_hi, wp.vec3(*sim.gravity),
+                    self._up, self.settings.rise_speed, p.phase, p.mass, p.foam_life, p.x, p.v, p.active,
+                    f.vented_mass])

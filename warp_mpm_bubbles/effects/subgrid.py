@@ -42,7 +42,9 @@ import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
-from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, sphere_radius
+from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
+from ..core.stage import Stage
+from ..scene.effects import SubgridBubbles
 from ..core.transfer_kernels import (
     GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
     make_stencil, wall_stopped,
@@ -230,8 +232,8 @@ def add_bubbles(sim, positions, radii, velocities, material_index: int, gauge_pr
     material = np.full(n, int(material_index), np.int32)
     sl = sim.add_particles(pos, vel, material, 4.0 / 3.0 * math.pi * radii**3, gauge_pressure)
     if n:
-        sim.phase[sl].fill_(PHASE_SUBGRID)
-        sim.subgrid_impulse[sl].zero_()
+        sim.particles.phase[sl].fill_(PHASE_SUBGRID)
+        sim.particles.subgrid_impulse[sl].zero_()
     return sl
 
 
@@ -253,37 +255,6 @@ def _neighbourhood_sum(field: np.ndarray, dim: int) -> np.ndarray:
     return out
 
 
-def _cluster_labels(cells: np.ndarray, dim: int) -> np.ndarray:
-    """Labels of the connected groups (faces, edges and corners touching) of the cells in `cells`
-    (m, dim) integer array, one row per occupied cell; labels are the smallest row of the group."""
-    m = len(cells)
-    label = np.arange(m)
-    if m < 2:
-        return label
-    span = cells.max(axis=0) + 3  # room for a neighbour on either side
-    key = np.ravel_multi_index((cells + 1).T, span)  # +1: a neighbour of row 0 stays >= 0
-    order = np.argsort(key)
-    ii, jj = [], []
-    for off in np.ndindex(*(3,) * dim):
-        off = np.array(off) - 1
-        if tuple(off) <= (0,) * dim:  # each pair once
-            continue
-        nb = np.ravel_multi_index((cells + 1 + off).T, span)
-        pos = np.searchsorted(key, nb, sorter=order).clip(0, m - 1)
-        hit = key[order[pos]] == nb
-        ii.append(np.flatnonzero(hit))
-        jj.append(order[pos[hit]])
-    ii, jj = np.concatenate(ii), np.concatenate(jj)
-    while True:  # min-label propagation with pointer jumping
-        new = label.copy()
-        np.minimum.at(new, ii, label[jj])
-        np.minimum.at(new, jj, label[ii])
-        new = new[new]
-        if np.array_equal(new, label):
-            return label
-        label = new
-
-
 def _ball_lattice(n: int, spacing: float, dim: int) -> np.ndarray:
     """The n points of a cubic lattice (spacing, centred on the origin) nearest the origin: a ball
     (disk in 2D) of n particle volumes. Stable sort: the same points every time."""
@@ -294,11 +265,15 @@ def _ball_lattice(n: int, spacing: float, dim: int) -> np.ndarray:
     return pts[order[:n]] * spacing
 
 
-class SubgridBubbleStage:
-    """[effects.subgrid_bubbles]: `to_grid` in the grid stage, `step` after g2p."""
+class SubgridBubbleStage(Stage):
+    """[effects.subgrid_bubbles]: the drag reaction on u* (on_momentum), bubbles moved and converted
+    after g2p. Other stages add bubbles through `add_bubbles` (entrainment, emitters)."""
+
+    name = "subgrid_bubbles"
+    Settings = SubgridBubbles
 
     def __init__(self, sim, settings):
-        self.settings = settings
+        super().__init__(sim, settings)
         materials = list(sim.scene.materials.values())
         liquids = [m for m in materials if m.kind == "liquid"]
         liquid = max(liquids, key=lambda m: m.density) if liquids else None
@@ -306,27 +281,27 @@ class SubgridBubbleStage:
         self.mu = liquid.viscosity if liquid is not None and liquid.viscosity > 0.0 else WATER_VISCOSITY
         self.gas_material = next(i for i, m in enumerate(materials) if m.is_gas)  # for entrained bubbles
         self.threshold_volume = 4.0 / 3.0 * math.pi * settings.radius**3
-        sim.add_particle_field("subgrid_impulse", wp.vec3)
+        sim.particles.add_field("subgrid_impulse", wp.vec3)
         sim.host_state.setdefault("gas_mass_rounding", np.zeros(1))  # kg, see the module docstring
         self.conversions = {"gathered": 0, "shrunk": 0}  # events since start (not checkpointed)
 
     def add_bubbles(self, sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
         return add_bubbles(sim, positions, radii, velocities, material_index, gauge_pressure)
 
-    def to_grid(self, sim, dt: float):
-        g = sim.grid
-        sim._launch(deposit_drag_reaction, sim.num_particles,
-                    [sim.x, sim.phase, sim.active, sim.subgrid_impulse, sim._origin, g.dx, g.dim, sim._domain_hi,
-                     *sim.face_mass, *sim.vel])
+    def on_momentum(self, sim, dt: float):
+        g, f, p = sim.grid, sim.fields, sim.particles
+        sim.launch(deposit_drag_reaction, p.count,
+                   [p.x, p.phase, p.active, p.subgrid_impulse, sim.origin, g.dx, g.dim, sim.domain_hi, *f.face_mass,
+                    *f.vel])
 
-    def step(self, sim, dt: float):
-        g = sim.grid
-        up_axis, up_sign = sim._up
-        sim._launch(advance_subgrid, sim.num_particles,
-                    [*sim.vel, sim.types, sim.phase_cells, sim.ceiling, sim.pressure, up_axis, up_sign, sim._origin,
-                     g.dx, g.dim, dt, sim._domain_hi, wp.vec3(*sim._gravity), self.rho_l, self.mu,
-                     sim.scene.domain.ambient_pressure, sim.mass, sim.vol0, sim.gas_law, sim.gas_gamma, sim.phase,
-                     sim.J, sim.x, sim.v, sim.subgrid_impulse, sim.active, sim.max_speed])
+    def after_g2p(self, sim, dt: float):
+        g, f, p = sim.grid, sim.fields, sim.particles
+        up_axis, up_sign = sim.up
+        sim.launch(advance_subgrid, p.count,
+                   [*f.vel, f.types, f.phase_cells, f.ceiling, f.pressure, up_axis, up_sign, sim.origin, g.dx, g.dim,
+                    dt, sim.domain_hi, wp.vec3(*sim.gravity), self.rho_l, self.mu, sim.scene.domain.ambient_pressure,
+                    p.mass, p.vol0, p.gas_law, p.gas_gamma, p.phase, p.J, p.x, p.v, p.subgrid_impulse, p.active,
+                    f.max_speed])
         if (sim.stats.steps + 1) % self.settings.convert_every == 0:
             self.convert(sim)
 
@@ -334,22 +309,22 @@ class SubgridBubbleStage:
     def convert(self, sim):
         """Both conversions from one snapshot: gathered sub-grid bubbles become resolved gas,
         small resolved clusters become sub-grid bubbles (see the module docstring)."""
-        n = sim.num_particles
+        n = sim.particles.count
         if n == 0:
             return
-        phase, active = sim.phase.numpy()[:n].copy(), sim.active.numpy()[:n].copy()
+        phase, active = sim.particles.phase.numpy()[:n].copy(), sim.particles.active.numpy()[:n].copy()
         sub = np.flatnonzero((phase == PHASE_SUBGRID) & (active == 1))
         gas = np.flatnonzero((phase == PHASE_GAS) & (active == 1))
         if len(sub) == 0 and len(gas) == 0:
             return
-        snap = {name: getattr(sim, name).numpy()[:n].copy() for name in ("x", "v", "mass", "vol0", "J", "material")}
+        snap = {name: sim.particles.numpy(name).copy() for name in ("x", "v", "mass", "vol0", "J", "material")}
         groups_up = self._gathered(sim, snap, sub)
         groups_down = self._small_clusters(sim, snap, gas)
         if not groups_up and not groups_down:
             return
         retired = np.concatenate(groups_up + groups_down)
         active[retired] = 0
-        sim.active[:n].assign(active)
+        sim.particles.active[:n].assign(active)
         # The liquid's positions as the pushes leave them: each new bubble pushes from where the
         # previous one left the water (from the snapshot, a second push would undo the first).
         liquid_x = snap["x"].astype(np.float64)
@@ -357,7 +332,7 @@ class SubgridBubbleStage:
         for members in groups_up:
             self._to_resolved(sim, snap, members, liquid_x, liquid)
         if groups_up:
-            sim.x[:n].assign(liquid_x.astype(np.float32))
+            sim.particles.x[:n].assign(liquid_x.astype(np.float32))
         for members in groups_down:
             self._to_subgrid(sim, snap, members)
         self.conversions["gathered"] += len(groups_up)
@@ -405,10 +380,10 @@ class SubgridBubbleStage:
         cells = self._cells(sim, snap["x"][gas])
         occupied, row = np.unique(cells, axis=0, return_inverse=True)
         row = row.reshape(-1)
-        label = _cluster_labels(occupied, sim.grid.dim)[row]
+        label = connected_labels(occupied, sim.grid.dim)[row]
         volume = snap["vol0"][gas].astype(np.float64) * snap["J"][gas]
         per_label = np.bincount(label, weights=volume)
-        types = sim.types.numpy()[(*cells.T,) + ((0,) if sim.grid.dim == 2 else ())]
+        types = sim.fields.types.numpy()[(*cells.T,) + ((0,) if sim.grid.dim == 2 else ())]
         in_air = np.bincount(label, weights=(types != FLUID).astype(np.float64), minlength=len(per_label)) > 0
         small = np.flatnonzero((per_label > 0) & ~in_air
                                & (per_label < self.settings.shrink_ratio * self.threshold_volume))
@@ -437,9 +412,9 @@ class SubgridBubbleStage:
         sl = sim.add_particles(pts.astype(np.float32), np.tile(velocity, (count, 1)).astype(np.float32), material,
                                np.full(count, total_volume / count))
         each = np.full(count, total_mass / count, np.float32)
-        sim.mass[sl].assign(each)
-        sim.vol0[sl].assign(np.full(count, total_rest / count, np.float32))
-        sim.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
+        sim.particles.mass[sl].assign(each)
+        sim.particles.vol0[sl].assign(np.full(count, total_rest / count, np.float32))
+        sim.particles.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
         self._book_rounding(sim, total_mass, each)
         # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
         radius = (sphere_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
@@ -462,7 +437,7 @@ class SubgridBubbleStage:
         sl = add_bubbles(sim, centre[None], sphere_radius([total_volume]), velocity[None],
                          int(snap["material"][members[0]]))
         stored = np.array([total_mass], np.float32)
-        sim.mass[sl].assign(stored)
-        sim.vol0[sl].assign(np.array([total_rest], np.float32))
-        sim.J[sl].assign(np.array([total_volume / total_rest], np.float32))
+        sim.particles.mass[sl].assign(stored)
+        sim.particles.vol0[sl].assign(np.array([total_rest], np.float32))
+        sim.particles.J[sl].assign(np.array([total_volume / total_rest], np.float32))
         self._book_rounding(sim, total_mass, stored)

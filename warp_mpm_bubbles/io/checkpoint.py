@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-GRID_STATE = ("pressure", "vented_mass")
+from ..core.state import GRID_CHECKPOINT
+
 
 
 def checkpoint_path(stage_path) -> Path:
@@ -36,11 +37,11 @@ def save_checkpoint(sim, path) -> None:
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        n = sim.num_particles
-        np.savez(f, **{f"particle_{name}": getattr(sim, name).numpy()[:n] for name in sim.particle_fields},
-                 **{name: getattr(sim, name).numpy() for name in GRID_STATE},
+        particles = sim.particles
+        np.savez(f, **{f"particle_{name}": particles.numpy(name) for name in particles.fields},
+                 **{name: getattr(sim.fields, name).numpy() for name in GRID_CHECKPOINT},
                  **{f"host_{name}": value for name, value in sim.host_state.items()},
-                 time=sim.time, frame=sim.frame, max_speed=sim._max_speed, steps=sim.stats.steps,
+                 time=sim.time, frame=sim.frame, max_speed=sim.max_particle_speed, steps=sim.stats.steps,
                  fingerprint=_fingerprint(sim.scene))
         f.flush()
         os.fsync(f.fileno())
@@ -56,14 +57,15 @@ def load_checkpoint(sim, path) -> None:
             raise SimulationError(f"{path} was written by a different scene (domain, materials, shapes or "
                                   f"solver settings changed); run without --resume to start over")
         n = data["particle_x"].shape[0]  # emitters add particles, compaction removes retired ones
-        sim._reserve(n)
-        sim.num_particles = n
-        for name in sim.particle_fields:
-            getattr(sim, name)[:n].assign(data[f"particle_{name}"])
-        for name in GRID_STATE:
-            getattr(sim, name).assign(data[name])
+        particles = sim.particles
+        particles.reserve(n)
+        particles.count = n
+        for name in particles.fields:
+            getattr(particles, name)[:n].assign(data[f"particle_{name}"])
+        for name in GRID_CHECKPOINT:
+            getattr(sim.fields, name).assign(data[name])
         for name in sim.host_state:
             sim.host_state[name] = data[f"host_{name}"].copy()
         sim.time, sim.frame = float(data["time"]), int(data["frame"])
-        sim._max_speed = float(data["max_speed"])
+        sim.max_particle_speed = float(data["max_speed"])
         sim.stats.steps = int(data["steps"])

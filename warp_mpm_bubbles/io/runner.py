@@ -101,7 +101,7 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint):
     with sim.timer("output"):
         p = sim.particles_numpy()
         radii = None  # without foam or sub-grid bubbles every particle has the output radius
-        if sim.foam or sim.subgrid:  # those are real bubbles: the radius of their own volume
+        if sim.stage("foam") or sim.stage("subgrid_bubbles"):  # those are real bubbles: the radius of their own volume
             radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
         writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
         save_checkpoint(sim, checkpoint)
@@ -130,7 +130,7 @@ def summary(result: RunResult) -> str:
         b = sim.gas_budget()
         share = lambda key: 100 * b[key] / b["total"] if b["total"] > 0 else 0.0  # noqa: E731
         held = "".join(f", {share(key):.1f}% {what}" for key, what, on in (
-            ("foam", "in foam", sim.foam), ("subgrid", "in sub-grid bubbles", sim.subgrid)) if on)
+            ("foam", "in foam", "foam"), ("subgrid", "in sub-grid bubbles", "subgrid_bubbles")) if sim.stage(on))
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")

@@ -1,14 +1,19 @@
-"""The optional forces on u* before the pressure solve, each run only when a material asks for it:
+"""Surface tension, all of it (docs/design.md, "Surface tension"): runs when a liquid has
+surface_tension > 0.
 
-- surface tension (a liquid's surface_tension > 0): the liquid's level set, its smoothing and
-  curvature, and the Laplace pressure jump on the faces of the liquid's surface; after g2p, gas
-  films thinner than a cell retract into the bubble beside them (sharp interface, gas_films);
-- viscosity (any material's viscosity > 0): explicit diffusion of the face velocities.
+    force      the liquid's level set (its rest-volume fraction), smoothed, its curvature, and the
+               Laplace pressure jump sigma kappa on the faces of the liquid's surface
+    after_g2p  (gas, sharp interface, gas_films = "retract") gas films thinner than a cell
+               retract into the bubble beside them: the jump's part below the grid
+    dt_limit   capillary waves: dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)) (Brackbill et al. 1992)
 """
+
+import math
 
 import warp as wp
 
-from ..core.grid import PHASE_GAS, SOLID_NO_SLIP
+from ..core.grid import INTERFACE_SHARP, PHASE_GAS
+from ..core.stage import Stage
 from ..core.grid_kernels import (
     block_offset, block_size, cell_centre, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
@@ -152,54 +157,6 @@ def apply_surface_tension(
 
 
 @wp.kernel
-def diffuse_velocity(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    inv_rho: wp.array3d(dtype=float),
-    vel: wp.array3d(dtype=float),
-    nu_liquid: float,
-    nu_gas: float,
-    axis: int,
-    dim: int,
-    dx: float,
-    dt: float,
-    out: wp.array3d(dtype=float),
-):
-    """Explicit viscosity: u += dt nu lap(u) on the faces the pressure acts on, nu of the phase beside
-    the face (the liquid's if either side is liquid).
-
-    A neighbour face outside the material contributes nothing (zero gradient: a stress-free
-    surface or a free-slip wall); a tangential neighbour inside a no-slip wall is taken as -u, so
-    the velocity is zero on the wall.
-    """
-    i, j, k = wp.tid()
-    u = vel[i, j, k]
-    out[i, j, k] = u
-    if inv_rho[i, j, k] == 0.0:
-        return
-    hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    nu = nu_gas
-    if is_liquid_cell(types, phase, lo) or is_liquid_cell(types, phase, hi):
-        nu = nu_liquid
-    lap = float(0.0)
-    for a in range(dim):
-        for s in range(2):
-            n = hi + (2 * s - 1) * unit(a)
-            if n[0] < 0 or n[1] < 0 or n[2] < 0 or n[0] >= vel.shape[0] or n[1] >= vel.shape[1] or n[2] >= vel.shape[2]:
-                continue
-            t_a = cell_type_at(types, n - unit(axis))
-            t_b = cell_type_at(types, n)
-            if inv_rho[n[0], n[1], n[2]] > 0.0:
-                lap += vel[n[0], n[1], n[2]] - u
-            elif a == axis and (is_solid(t_a) or is_solid(t_b)):
-                lap += vel[n[0], n[1], n[2]] - u  # the wall's normal face: the wall's velocity, 0
-            elif a != axis and (t_a == SOLID_NO_SLIP or t_b == SOLID_NO_SLIP):
-                lap += -2.0 * u  # mirrored across a no-slip wall half a cell away
-    out[i, j, k] = u + dt * nu * lap / (dx * dx)
-
-
-@wp.kernel
 def retract_gas_films(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
@@ -242,3 +199,53 @@ def retract_gas_films(
         return
     step = wp.min(capillary_speed * dt, 0.25 * dx)
     x[p] = clamp_to_domain(xp + (step / length) * pull, domain_hi, dx, dim)
+
+
+LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tension.py measures it)
+
+
+class TensionStage(Stage):
+    name = "surface_tension"
+    timer = "tension"
+
+    def __init__(self, sim, settings=None):
+        super().__init__(sim, settings)
+        g, materials = sim.grid, sim.scene.materials.values()
+        liquids = [m for m in materials if m.kind == "liquid"]
+        self.sigma = max(m.surface_tension for m in liquids)  # N/m; the stage runs only if > 0
+        self.rho_liquid = max(m.density for m in liquids)
+        self.rho_gas = max((m.density for m in materials if m.is_gas), default=0.0)
+        self.curvature, self.level, self.level_tmp = (sim.fields.cells() for _ in range(3))
+        # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
+        # interface they retract into their bubble, at the Taylor-Culick speed of a one-cell film.
+        self.retract_films = (sim.has_gas and sim.interface == INTERFACE_SHARP
+                              and sim.scene.solver.gas_films == "retract")
+        self.film_speed = math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx)) if self.retract_films else 0.0
+
+    def hooks(self) -> set[str]:
+        hooks = super().hooks()
+        if not self.retract_films:
+            hooks.discard("after_g2p")
+        return hooks
+
+    def dt_limit(self, sim) -> float:
+        # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
+        return math.sqrt((self.rho_liquid + self.rho_gas) * sim.grid.dx**3 / (4.0 * math.pi * self.sigma))
+
+    def force(self, sim, dt: float):
+        g, f = sim.grid, sim.fields
+        level, smoothed = self.level, self.level_tmp
+        sim.launch(liquid_level_set, g.cells, [f.liq_volume, 1.0 / g.dx**3, level])
+        for _ in range(LEVEL_SET_SMOOTHING):
+            sim.launch(smooth_level_set, g.cells, [f.types, level, g.dim, smoothed])
+            level, smoothed = smoothed, level
+        sim.launch(surface_curvature, g.cells, [f.types, level, g.dx, g.dim, self.curvature])
+        for a in g.axes:
+            sim.launch(apply_surface_tension, g.face_shape(a),
+                       [f.types, f.phase_cells, level, self.curvature, f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a]])
+
+    def after_g2p(self, sim, dt: float):
+        g, f, p = sim.grid, sim.fields, sim.particles
+        sim.launch(retract_gas_films, p.count,
+                   [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.origin, g.dx, g.dim, dt, sim.domain_hi,
+                    p.x, p.phase, p.active])

@@ -23,6 +23,7 @@ except ModuleNotFoundError:  # Python < 3.11
 from .checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
+from ..core.grid import INTERFACES, PRECONDITIONERS
 from ..core.seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
@@ -31,12 +32,10 @@ MATERIAL_KINDS = ("liquid", "gas", "foam")  # foam: made by [effects.foam] from 
 GAS_LAWS = ("isothermal", "adiabatic", "incompressible")  # p = B rho, p ~ rho^gamma, density ratio only
 LIQUID_VELOCITIES = ("own", "shared")  # g2p: the liquid from its own side of the interface, or the shared field
 GAS_FILMS = ("retract", "passive")  # gas thinner than a cell beside a bubble: drawn back by tension, or carried
-INTERFACES = ("sharp", "baseline")  # ghost-fluid gas-liquid faces, or the published "any gas particle" cells
 # Per-kind defaults: water, and air at 20 C and 1 atm.
 KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
                  "gas": {"density": 1.2, "color": (0.92, 0.95, 1.0), "eos": "isothermal"},
                  "foam": {"density": 50.0, "color": (1.0, 1.0, 1.0)}}  # foam: ~5% liquid, the rest air
-PRECONDITIONERS = ("multigrid", "jacobi", "none")
 OUTPUT_FORMATS = ("instancer", "points", "both")
 UP_AXES = ("Y", "Z")
 MAX_CELLS = 2**30  # 1024^3: beyond it the grid outgrows a GPU's memory and int32 launch indices

@@ -1,0 +1,118 @@
+"""The simulation's state, apart from the stepper: particle arrays and grid fields on one device.
+
+`ParticleState` holds one array per particle field, all of the same capacity, the first `count`
+in use. Every scene has the fields of PARTICLE_FIELDS; a stage adds its own with `add_field`
+(foam lifetimes, sub-grid drag impulses), and those grow, compact and checkpoint with the rest.
+
+`GridFields` holds the MAC grid's face and cell arrays, rebuilt by every step (only `pressure`,
+the solver's warm start, and `vented_mass`, the gas ledger, carry over and are checkpointed). A
+stage that needs a grid array of its own allocates it in its constructor; gas arrays are one-cell
+placeholders until the gas stage replaces them (the core kernels take them as arguments either way).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+# The per-particle arrays every scene has: position (m), velocity (m/s), APIC affine matrix (1/s),
+# mass (kg), rest volume (m^3), J = volume / rest volume, grid.PHASE_*, 1 while simulated (0:
+# retired), index into scene.materials, gas law code and adiabatic exponent, stable id.
+PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vol0": float, "J": float,
+                   "phase": wp.int32, "active": wp.int32, "material": wp.int32, "gas_law": wp.int32,
+                   "gas_gamma": float, "ids": wp.int64}
+GRID_CHECKPOINT = ("pressure", "vented_mass")  # what a step reads from the previous one
+
+
+class ParticleState:
+    """Particle arrays on `device`; `count` of them in use, the arrays hold capacity >= that."""
+
+    def __init__(self, device):
+        self.device = device
+        self.count = 0
+        self.fields = dict(PARTICLE_FIELDS)
+        for name, dtype in self.fields.items():
+            setattr(self, name, wp.zeros(0, dtype=dtype, device=device))
+
+    @property
+    def capacity(self) -> int:
+        return len(self.x)
+
+    def add_field(self, name: str, dtype):
+        """A per-particle array for a stage (zero for existing particles)."""
+        self.fields[name] = dtype
+        setattr(self, name, wp.zeros(self.capacity, dtype=dtype, device=self.device))
+
+    def reserve(self, n: int):
+        """Room for n particles; arrays grow geometrically, keeping the ones in use."""
+        capacity = self.capacity
+        if n <= capacity:
+            return
+        capacity = n if capacity == 0 else max(n, 2 * capacity)
+        for name, dtype in self.fields.items():
+            new = wp.zeros(capacity, dtype=dtype, device=self.device)
+            if self.count:
+                wp.copy(new, getattr(self, name), count=self.count)
+            setattr(self, name, new)
+
+    def append(self, values: dict[str, np.ndarray], n: int) -> slice:
+        """Append n particles; `values` maps field names to numpy arrays (missing fields stay 0)."""
+        start = self.count
+        self.reserve(start + n)
+        for name, dtype in self.fields.items():
+            if name in values and n:
+                src = wp.array(np.asarray(values[name]), dtype=dtype, device=self.device)
+                wp.copy(getattr(self, name), src, dest_offset=start, count=n)
+        self.count = start + n
+        return slice(start, start + n)
+
+    def compact(self, keep: np.ndarray):
+        """Keep only the particles at these indices, in their order (so every kernel's sums run in
+        the same order and results stay the same bit for bit)."""
+        for name, dtype in self.fields.items():
+            data = getattr(self, name).numpy()[: self.count][keep]
+            compacted = wp.zeros(self.capacity, dtype=dtype, device=self.device)
+            if len(keep):
+                wp.copy(compacted, wp.array(data, dtype=dtype, device=self.device), count=len(keep))
+            setattr(self, name, compacted)
+        self.count = len(keep)
+
+    def numpy(self, name: str) -> np.ndarray:
+        """The in-use part of one field (a view on the CPU device: the next step changes it)."""
+        return getattr(self, name).numpy()[: self.count]
+
+
+class GridFields:
+    """The grid arrays of one MacGrid on `device` (see the module docstring)."""
+
+    def __init__(self, grid, device):
+        self.grid, self.device = grid, device
+        faces, cells = self.faces, self.cells
+        self.mom, self.face_mass, self.vel, self.inv_rho = faces(), faces(), faces(), faces()
+        self.vel_tmp, self.valid, self.valid_tmp = faces(), faces(wp.int32), faces(wp.int32)
+        self.liq_mass, self.liq_volume = cells(), cells()
+        self.cell_count, self.types, self.phase_cells = cells(wp.int32), cells(wp.int32), cells(wp.int32)
+        self.pressure, self.diag, self.rhs = cells(), cells(), cells()
+        self.extra_diag = cells()  # kappa/dt^2 of gas cells
+        # Gas state per cell: one-cell placeholders that no kernel reads until the gas stage
+        # allocates them (physics/gas.py).
+        placeholder = self.placeholder
+        self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv = (placeholder() for _ in range(4))
+        self.gas_count = placeholder(wp.int32)
+        self.target_div, self.gas_rate = placeholder(), placeholder()
+        self.ceiling = placeholder(wp.int32)
+        self.gas_vel = self.gas_valid = None  # the gas's own face field (sharp interface, own liquid field)
+        self.counters = wp.zeros(2, dtype=wp.int32, device=device)  # fluid cells, pinned cells
+        self.max_speed = wp.zeros(1, dtype=float, device=device)  # fastest particle this step
+        self.nonfinite = wp.zeros(1, dtype=wp.int32, device=device)  # particles p2g refused this step
+        self.vented_mass = wp.zeros(1, dtype=wp.float64, device=device)  # kg of gas gone to the air
+
+    def faces(self, dtype=float) -> list:
+        """One array per simulated axis' faces (three in 2D too: the w faces are never read)."""
+        return [wp.zeros(self.grid.face_shape(a), dtype=dtype, device=self.device) for a in range(3)]
+
+    def cells(self, dtype=float):
+        return wp.zeros(self.grid.cells, dtype=dtype, device=self.device)
+
+    def placeholder(self, dtype=float):
+        return wp.zeros((1, 1, 1), dtype=dtype, device=self.device)

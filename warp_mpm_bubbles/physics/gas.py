@@ -1,0 +1,103 @@
+"""Gas: the compressible phase of the one two-phase system (docs/design.md, "The gas").
+
+The gas law and the system itself are core (core/transfer_kernels.p2g_gas sums p and kappa per
+cell, core/grid_kernels.pressure_diagonal_and_rhs puts kappa/dt^2 on the diagonal), because every
+two-phase face needs both sides. This stage owns what only gas scenes do:
+
+    after_p2g      gas mass, volume, p V and kappa V per cell
+    on_cells       which fluid cells are gas; where the open air starts above each column
+    before_extend  (sharp interface, liquid_velocity = "own") the gas keeps the shared projected
+                   field; the liquid's own field is extrapolated across the interface
+    before_g2p     (sharp interface) gas particles take their cells' volume change
+    after_g2p      gas reaching open air vents, its mass booked (unless foam takes it)
+
+A scene runs it when a shape or emitter uses a gas material, or it has sub-grid bubbles.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..core import grid_kernels as gk
+from ..core.grid import INTERFACE_SHARP, PHASE_LIQUID
+from ..core.stage import Stage
+from ..core.transfer_kernels import gas_volume_rate, p2g_gas, update_gas_J
+
+
+class GasStage(Stage):
+    name = "gas"
+    timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
+
+    def __init__(self, sim, settings=None):
+        super().__init__(sim, settings)
+        f, solver = sim.fields, sim.scene.solver
+        f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv = (f.cells() for _ in range(4))
+        f.gas_count = f.cells(wp.int32)
+        f.target_div, f.gas_rate = f.cells(), f.cells()
+        up_axis = sim.up[0]
+        column = list(sim.grid.cells)
+        if up_axis >= 0:
+            column[up_axis] = 1
+        f.ceiling = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
+        self.sharp = sim.interface == INTERFACE_SHARP
+        if self.sharp and solver.liquid_velocity == "own":
+            f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
+        # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
+        self.vents = "foam" not in sim.effects
+
+    def hooks(self) -> set[str]:
+        hooks = super().hooks()
+        if not self.vents:
+            hooks.discard("after_g2p")
+        if not self.sharp:
+            hooks.discard("before_g2p")
+        return hooks
+
+    def after_p2g(self, sim, dt: float):
+        g, f, p = sim.grid, sim.fields, sim.particles
+        for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
+            arr.zero_()
+        sim.launch(p2g_gas, p.count,
+                   [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
+                    sim.scene.domain.ambient_pressure, sim.origin, g.dx, g.dim, sim.domain_hi,
+                    f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
+
+    def on_cells(self, sim, dt: float):
+        g, f = sim.grid, sim.fields
+        sim.launch(gk.classify_phases, g.cells,
+                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells])
+        up_axis, up_sign = sim.up
+        if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
+            f.ceiling.fill_(-1)
+            sim.launch(gk.liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
+
+    def before_extend(self, sim, dt: float):
+        f = sim.fields
+        if f.gas_vel is None:
+            return
+        # The gas reads the shared projected field; the liquid keeps only its own faces, and the
+        # core extends that across the interface.
+        for a in sim.grid.axes:
+            wp.copy(f.gas_vel[a], f.vel[a])
+            wp.copy(f.gas_valid[a], f.valid[a])
+            sim.launch(gk.keep_phase_faces, sim.grid.face_shape(a),
+                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a]])
+        sim.extend(f.gas_vel, f.gas_valid)
+
+    def before_g2p(self, sim, dt: float):
+        # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
+        # The baseline treats a cell with any gas as all gas, so there the published rule stays:
+        # J follows the interpolated divergence (in g2p).
+        g, f, p = sim.grid, sim.fields, sim.particles
+        sim.launch(gas_volume_rate, g.cells,
+                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
+        sim.launch(update_gas_J, p.count,
+                   [p.x, p.phase, p.active, f.gas_rate, sim.origin, g.dx, g.dim, sim.domain_hi, dt, p.J])
+
+    def after_g2p(self, sim, dt: float):
+        g, f, p = sim.grid, sim.fields, sim.particles
+        up_axis, up_sign = sim.up
+        sim.launch(gk.vent_exposed_gas, p.count,
+                   [p.x, p.phase, p.mass, f.types, f.ceiling, up_axis, up_sign, sim.origin, g.dx, g.dim, p.active,
+                    f.vented_mass])
+

@@ -507,38 +507,6 @@ def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(
 
 
 @wp.func
-def height_along(c: wp.vec3i, up_axis: int, up_sign: int, n_up: int):
-    """Cell index counted upwards (against gravity)."""
-    if up_sign > 0:
-        return c[up_axis]
-    return n_up - 1 - c[up_axis]
-
-
-@wp.func
-def column_of(c: wp.vec3i, up_axis: int):
-    col = c
-    col[up_axis] = 0
-    return col
-
-
-@wp.kernel
-def liquid_ceiling(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    up_axis: int,
-    up_sign: int,
-    ceiling: wp.array3d(dtype=wp.int32),
-):
-    """Per column along gravity, the height of the highest liquid cell (-1: none)."""
-    i, j, k = wp.tid()
-    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
-        return
-    c = wp.vec3i(i, j, k)
-    col = column_of(c, up_axis)
-    wp.atomic_max(ceiling, col[0], col[1], col[2], height_along(c, up_axis, up_sign, types.shape[up_axis]))
-
-
-@wp.func
 def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
     """The index of the cell holding world position x (ghost layer included)."""
     q = (x - origin) / dx
@@ -549,54 +517,3 @@ def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
 def cell_centre(c: wp.vec3i, origin: wp.vec3, dx: float):
     """The world position of cell c's centre (the inverse of cell_of)."""
     return origin + dx * wp.vec3(float(c[0]) + 0.5, float(c[1]) + 0.5, float(c[2]) + 0.5)
-
-
-@wp.func
-def exposed_to_open_air(
-    types: wp.array3d(dtype=wp.int32),
-    ceiling: wp.array3d(dtype=wp.int32),
-    c: wp.vec3i,
-    up_axis: int,
-    up_sign: int,
-    dim: int,
-):
-    """Open air at cell c: an empty cell at or beside it, and c above the highest liquid cell of
-    its column. Without the second condition a particle-free hole that stretching opens inside
-    the water would swallow the gas next to it. With no gravity there is no "above": any empty
-    neighbour counts. (Venting and foam both ask this.)"""
-    exposed = cell_type_at(types, c) == EMPTY
-    for a in range(dim):
-        for s in range(2):
-            if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
-                exposed = True
-    if exposed and up_axis >= 0:
-        col = column_of(c, up_axis)
-        exposed = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
-    return exposed
-
-
-@wp.kernel
-def vent_exposed_gas(
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    pmass: wp.array(dtype=float),
-    types: wp.array3d(dtype=wp.int32),
-    ceiling: wp.array3d(dtype=wp.int32),
-    up_axis: int,
-    up_sign: int,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-    active: wp.array(dtype=wp.int32),
-    vented_mass: wp.array(dtype=wp.float64),
-):
-    """Gas that reaches the open air joins it: the particle is retired and its mass booked as
-    vented, so gas mass stays exactly accounted for.
-    """
-    p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS:
-        return
-    c = cell_of(x[p], origin, dx)
-    if exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
-        active[p] = 0
-        wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))

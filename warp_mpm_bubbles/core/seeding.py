@@ -4,13 +4,14 @@ Samples are generated one x-slab of cells at a time, each slab with its own
 generator seeded with (solver.seed, slab index). Any slab can therefore be
 regenerated on its own: scene validation uses that to check cheaply that a
 shape receives particles, with exactly the samples the full seeding produces.
+
+`domain` and `scene` are scene.model.Domain and Scene (not imported: the scene imports this module).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-
 
 
 def sub_cells_per_axis(ppc: int, dim: int) -> int:
@@ -21,7 +22,7 @@ def sub_cells_per_axis(ppc: int, dim: int) -> int:
     return k
 
 
-def slab_samples(domain: Domain, ppc: int, seed: int, ix: int) -> np.ndarray:
+def slab_samples(domain, ppc: int, seed: int, ix: int) -> np.ndarray:
     """Sample positions (M, dim) float64 for the cells with x index `ix`, cell-major order."""
     dim, h = domain.dim, domain.dx
     k = sub_cells_per_axis(ppc, dim)
@@ -35,19 +36,19 @@ def slab_samples(domain: Domain, ppc: int, seed: int, ix: int) -> np.ndarray:
     return ((cell[:, None, :] + (sub + jitter) / k) * h).reshape(-1, dim)
 
 
-def _slabs_overlapping(lo_x: float, hi_x: float, domain: Domain) -> range:
+def _slabs_overlapping(lo_x: float, hi_x: float, domain) -> range:
     nx, h = domain.cells[0], domain.dx
     return range(max(0, math.floor(lo_x / h)), min(nx, math.floor(hi_x / h) + 1))
 
 
-def shape_seeds_particles(shape, domain: Domain, ppc: int, seed: int) -> bool:
+def shape_seeds_particles(shape, domain, ppc: int, seed: int) -> bool:
     """Whether `shape` contains at least one sample (ignoring later shapes overwriting it)."""
     lo, hi = shape.bounds()
     return any(shape.contains(slab_samples(domain, ppc, seed, ix)).any()
                for ix in _slabs_overlapping(lo[0], hi[0], domain))
 
 
-def seed_particles(scene: Scene) -> dict[str, np.ndarray]:
+def seed_particles(scene) -> dict[str, np.ndarray]:
     """Seed the scene's shapes with particles.
 
     Returns positions (N,3) float32 (2D: z = 0.5*dx), velocities (N,3) float32,

@@ -29,6 +29,7 @@ import warp as wp
 from ..core import grid_kernels as gk
 from ..core.grid import PHASE_FOAM, PHASE_GAS
 from ..core.stage import Stage
+from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
 from ..core.transfer_kernels import (
     CELL_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, make_stencil, wall_stopped,
@@ -138,7 +139,7 @@ def gas_to_foam(
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    if not gk.exposed_to_open_air(types, ceiling, gk.cell_of(x[p], origin, dx), up_axis, up_sign, dim):
+    if not exposed_to_open_air(types, ceiling, gk.cell_of(x[p], origin, dx), up_axis, up_sign, dim):
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material

@@ -44,6 +44,7 @@ import warp as wp
 from ..core import grid_kernels as gk
 from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
+from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
 from ..core.transfer_kernels import (
     GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
@@ -187,8 +188,8 @@ def advance_subgrid(
     if t == EMPTY:
         leaves = True  # no gravity: any empty cell is air
         if up_axis >= 0:  # an empty hole inside the water is still water around the bubble
-            col = gk.column_of(c, up_axis)
-            leaves = gk.height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+            col = column_of(c, up_axis)
+            leaves = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
     if leaves:
         phase[p] = PHASE_GAS
         impulse[p] = wp.vec3(0.0)

@@ -19,9 +19,99 @@ from __future__ import annotations
 import warp as wp
 
 from ..core import grid_kernels as gk
-from ..core.grid import INTERFACE_SHARP, PHASE_LIQUID
+from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
+from ..core.grid_kernels import cell_of, cell_type_at, unit
 from ..core.stage import Stage
 from ..core.transfer_kernels import gas_volume_rate, p2g_gas, update_gas_J
+
+wp.set_module_options({"enable_backward": False})
+
+
+# ------------------------------------------------------------------------------- the open air
+@wp.func
+def height_along(c: wp.vec3i, up_axis: int, up_sign: int, n_up: int):
+    """Cell index counted upwards (against gravity)."""
+    if up_sign > 0:
+        return c[up_axis]
+    return n_up - 1 - c[up_axis]
+
+
+@wp.func
+def column_of(c: wp.vec3i, up_axis: int):
+    col = c
+    col[up_axis] = 0
+    return col
+
+
+@wp.kernel
+def liquid_ceiling(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    up_axis: int,
+    up_sign: int,
+    ceiling: wp.array3d(dtype=wp.int32),
+):
+    """Per column along gravity, the height of the highest liquid cell (-1: none)."""
+    i, j, k = wp.tid()
+    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
+        return
+    c = wp.vec3i(i, j, k)
+    col = column_of(c, up_axis)
+    wp.atomic_max(ceiling, col[0], col[1], col[2], height_along(c, up_axis, up_sign, types.shape[up_axis]))
+
+
+@wp.func
+def exposed_to_open_air(
+    types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    c: wp.vec3i,
+    up_axis: int,
+    up_sign: int,
+    dim: int,
+):
+    """Open air at cell c: an empty cell at or beside it, and c above the highest liquid cell of
+    its column. Without the second condition a particle-free hole that stretching opens inside
+    the water would swallow the gas next to it. With no gravity there is no "above": any empty
+    neighbour counts. (Venting and foam both ask this.)"""
+    exposed = cell_type_at(types, c) == EMPTY
+    for a in range(dim):
+        for s in range(2):
+            if cell_type_at(types, c + (2 * s - 1) * unit(a)) == EMPTY:
+                exposed = True
+    if exposed and up_axis >= 0:
+        col = column_of(c, up_axis)
+        exposed = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+    return exposed
+
+
+@wp.kernel
+def vent_exposed_gas(
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    pmass: wp.array(dtype=float),
+    types: wp.array3d(dtype=wp.int32),
+    ceiling: wp.array3d(dtype=wp.int32),
+    up_axis: int,
+    up_sign: int,
+    origin: wp.vec3,
+    dx: float,
+    dim: int,
+    active: wp.array(dtype=wp.int32),
+    vented_mass: wp.array(dtype=wp.float64),
+):
+    """Gas that reaches the open air joins it: the particle is retired and its mass booked as
+    vented, so gas mass stays exactly accounted for.
+    """
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    c = cell_of(x[p], origin, dx)
+    if exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
+        active[p] = 0
+        wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
+
+
+# ------------------------------------------------------------------------------------ the stage
 
 
 class GasStage(Stage):
@@ -69,7 +159,7 @@ class GasStage(Stage):
         up_axis, up_sign = sim.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
             f.ceiling.fill_(-1)
-            sim.launch(gk.liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
+            sim.launch(liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
 
     def before_extend(self, sim, dt: float):
         f = sim.fields
@@ -97,7 +187,7 @@ class GasStage(Stage):
     def after_g2p(self, sim, dt: float):
         g, f, p = sim.grid, sim.fields, sim.particles
         up_axis, up_sign = sim.up
-        sim.launch(gk.vent_exposed_gas, p.count,
+        sim.launch(vent_exposed_gas, p.count,
                    [p.x, p.phase, p.mass, f.types, f.ceiling, up_axis, up_sign, sim.origin, g.dx, g.dim, p.active,
                     f.vented_mass])
 

@@ -1,4 +1,4 @@
-"""Accuracy against cost: the 2D reference cases of DESIGN §5 over the settings that trade one for the other.
+"""Accuracy against cost: the 2D reference cases of docs/design.md#validation over the settings that trade one for the other.
 
     python benchmarks/accuracy_vs_time.py            # full study on the CPU, writes docs/ (see its .md for the time)
     python benchmarks/accuracy_vs_time.py --quick    # smoke run, into benchmarks/results/accuracy_quick/

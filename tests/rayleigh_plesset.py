@@ -1,8 +1,8 @@
-"""Reference radius of an isothermal gas bubble in an inviscid liquid, by RK4 (DESIGN §5).
+"""Reference radius of an isothermal gas bubble in an inviscid liquid, by RK4 (docs/design.md#rayleigh-plesset).
 
 Units R0 = 1, rho_liquid = 1, p_inf = 1: time in R0 sqrt(rho/p_inf). No surface tension, no viscosity,
 gas p_g = p_g0 (R0/R)^d. The equations are those in the header of
-refdata/rayleigh_plesset_isothermal_collapse_reference.csv:
+tests/data/rayleigh_plesset_isothermal_collapse_reference.csv:
 
     3D: R R'' + 1.5 R'^2 = p_g - p_inf
     2D: (R R'' + R'^2) ln(Rout/R) + 0.5 R'^2 (R^2/Rout^2 - 1) = p_g - p_inf,  Rout^2 = Rout0^2 + R^2 - R0^2

@@ -1,4 +1,4 @@
-"""Compressible gas in the two-phase pressure system (DESIGN §2, §5), on Warp's CPU device."""
+"""Compressible gas in the two-phase pressure system (docs/design.md: #pressure-system, #validation), on Warp's CPU device."""
 
 import math
 
@@ -17,7 +17,7 @@ AIR_AND_WATER = lambda: {"water": Material("water"), "air": Material("air", kind
 
 # ------------------------------------------------- Minnaert: a 2D bubble breathing in a liquid disc
 R0, R_INF = 0.01, 0.05
-OMEGA_2D = math.sqrt(2 * P_ATM / (1000.0 * R0**2 * math.log(R_INF / R0)))  # DESIGN §5, sigma = 0
+OMEGA_2D = math.sqrt(2 * P_ATM / (1000.0 * R0**2 * math.log(R_INF / R0)))  # docs/design.md#validation, sigma = 0
 STEPS_PER_PERIOD = 40
 
 
@@ -171,7 +171,7 @@ def test_a_bubble_rising_five_diameters_stays_a_bubble_without_water_inside(tmp_
 
 @pytest.mark.slow
 def test_a_3d_cap_bubble_rises_at_the_davies_taylor_speed(tmp_path):
-    # DESIGN §5: a large bubble (d_e = 2 cm, Eotvos 54) rises at 0.711 sqrt(g d_e) = 0.315 m/s in
+    # docs/design.md#validation: a large bubble (d_e = 2 cm, Eotvos 54) rises at 0.711 sqrt(g d_e) = 0.315 m/s in
     # open water; in this 6 cm square tank (d/D = 0.33) the wall factor 1.13 exp(-d/D) (Wallis
     # 1969; Clift, Grace & Weber ch. 9) gives 0.255 m/s. Started as Davies & Taylor's 50 degree
     # cap of the same volume (a sphere at rest is pierced by its wake first), 4 cells per radius
@@ -223,8 +223,8 @@ def test_liquid_only_scene_runs_no_gas_stage(tmp_path):
     assert sim.fields.gas_volume.shape == (1, 1, 1)  # gas arrays are placeholders, never read
 
 
-# ------------------------------------- isothermal collapse to the first radius minimum (DESIGN §5)
-# Rows of refdata/rayleigh_plesset_isothermal_collapse_reference.csv (p_g0/p_inf = 0.2, inviscid,
+# ------------------------------------- isothermal collapse to the first radius minimum (docs/design.md#rayleigh-plesset)
+# Rows of tests/data/rayleigh_plesset_isothermal_collapse_reference.csv (p_g0/p_inf = 0.2, inviscid,
 # sigma = 0; units R0, rho, p_inf): t, R_3D, R_2D with a free outer surface at Rout0 = 10 R0; and the
 # first minima in its header. They check the integrator that gives the reference for the smaller
 # annulus simulated below.
@@ -322,7 +322,7 @@ def test_first_collapse_minimum_matches_rayleigh_plesset(collapse):
 
 # ------------------------------------------ Minnaert in 3D: a bubble breathing in a liquid shell
 R_SHELL = 3 * R0  # free outer surface of the liquid shell
-OMEGA_3D = math.sqrt(3 * P_ATM / (1000.0 * R0**2) / (1 - R0 / R_SHELL))  # DESIGN §5, sigma = 0: 339.8 Hz
+OMEGA_3D = math.sqrt(3 * P_ATM / (1000.0 * R0**2) / (1 - R0 / R_SHELL))  # docs/design.md#validation, sigma = 0: 339.8 Hz
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Physics and invariants of the liquid core on Warp's CPU device (DESIGN §5 reference cases)."""
+"""Physics and invariants of the liquid core on Warp's CPU device (docs/design.md#validation reference cases)."""
 
 import math
 import pathlib
@@ -12,7 +12,7 @@ from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 G = 9.81
-REFDATA = pathlib.Path(__file__).resolve().parent / "data"  # copies of DESIGN.md §5 reference data
+REFDATA = pathlib.Path(__file__).resolve().parent / "data"  # the reference data of docs/design.md#validation
 MARTIN_MOYCE = REFDATA / "martin_moyce_1952_n2_2_a2.25in.csv"
 
 

@@ -1,4 +1,4 @@
-"""Surface tension: the Laplace pressure jump (DESIGN §5), spurious currents, and that the stage
+"""Surface tension: the Laplace pressure jump (docs/design.md#tension), spurious currents, and that the stage
 runs only when a scene asks for it. 2D, 8 cells per radius, water-air sigma, no gravity."""
 
 import math

@@ -326,7 +326,7 @@ def pressure_diagonal_and_rhs(
     target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
 ):
-    """Diagonal and right-hand side of the one two-phase system (DESIGN §2), per fluid cell c:
+    """Diagonal and right-hand side of the one two-phase system (docs/design.md, #pressure-equation), per fluid cell c:
 
         (kappa_c/dt^2)(p_c - p^_c) - div(1/rho grad p)_c = -(div u* - d_target)/dt
 

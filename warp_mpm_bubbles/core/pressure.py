@@ -3,7 +3,7 @@
 The operator is ``A p = -div(1/rho grad p)`` over fluid cells (empty cells are Dirichlet p = 0 gauge,
 solid faces Neumann), plus, from issue #3 on, a per-cell ``kappa/dt^2`` term for the gas. The CG is
 hand-written because ``warp.optim.linear.cg`` spends most of its CPU time in its reduction kernel
-(DESIGN §7); each iteration is three launches and two scalar read-backs (plus one V-cycle and one
+(docs/design.md, #cg-on-warp); each iteration is three launches and two scalar read-backs (plus one V-cycle and one
 dot product with the multigrid preconditioner of multigrid.py).
 
 Preconditioners: "none", "jacobi" (diagonal), "multigrid" (one symmetric V-cycle). Jacobi-PCG

@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from .geometry import grid_geometry
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
@@ -67,9 +68,9 @@ class Simulation:
     """Runs a validated :class:`~warp_mpm_bubbles.scene.Scene` on a Warp device ("cpu", "cuda:0").
 
     Public state: ``particles`` (`ParticleState`), ``fields`` (`GridFields`), ``grid`` (`MacGrid`),
-    ``time`` and ``frame``, ``host_state`` (small checkpointed state of the stages), and the
-    geometry the kernels take: ``origin`` and ``domain_hi`` (wp.vec3, m), ``gravity`` (3 floats,
-    m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1 without gravity).
+    ``time`` and ``frame``, ``host_state`` (small checkpointed state of the stages), ``gravity``
+    (3 floats, m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1
+    without gravity), and ``geometry``, the `GridGeometry` struct the particle kernels take.
     """
 
     def __init__(self, scene, device=None):
@@ -97,13 +98,12 @@ class Simulation:
         walls = scene.domain.wall_types
         self.wall_lo = wp.vec3i(walls[0], walls[2], walls[4])
         self.wall_hi = wp.vec3i(walls[1], walls[3], walls[5])
-        self.origin = wp.vec3(*g.origin)
-        self.domain_hi = wp.vec3(*g.domain_size)
         gravity = tuple(scene.domain.gravity) + (0.0,) * (3 - g.dim)
         self.gravity = tuple(float(a) for a in gravity)
         g_abs = [abs(a) for a in self.gravity[: g.dim]]
         up_axis = int(np.argmax(g_abs)) if max(g_abs) > 0.0 else -1
         self.up = (up_axis, 1 if up_axis < 0 or self.gravity[up_axis] < 0.0 else -1)
+        self.geometry = grid_geometry(g, self.gravity, self.up)  # what the particle kernels take
         self.interface = INTERFACES.index(scene.solver.interface)
         self.two_phase = int(self.has_gas)
 
@@ -198,12 +198,11 @@ class Simulation:
 
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
-        g, f, p = self.grid, self.fields, self.particles
+        f, p = self.fields, self.particles
         for arr in (*f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite):
             arr.zero_()
         self.launch(p2g, p.count,
-                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.origin, g.dx, g.dim, self.domain_hi,
-                     *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
+                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f = self.grid, self.fields
@@ -263,14 +262,13 @@ class Simulation:
             s.on_extended(self, vel)
 
     def _grid_to_particles(self, dt: float):
-        g, f, p = self.grid, self.fields, self.particles
+        f, p = self.fields, self.particles
         # The sharp interface's gas took its cells' volume change in before_g2p; the baseline (and
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
         self.launch(g2p_advect, p.count,
-                    [*f.vel, *(f.gas_vel or f.vel), self.origin, g.dx, g.dim, dt, self.domain_hi, p.x, p.v, p.C, p.J,
-                     p.active, p.phase, gas_J_from_cells, f.max_speed])
+                    [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells, f.max_speed])
 
     # ---------------------------------------------------------------------------- time steps
     def dt_limits(self) -> dict[str, float]:

@@ -7,6 +7,7 @@ the gradient of velocity component ``a``. In 2D the stencil collapses to one nod
 
 import warp as wp
 
+from .geometry import GridGeometry
 from .grid import FLUID, PHASE_GAS, PHASE_LIQUID
 
 wp.set_module_options({"enable_backward": False})
@@ -123,10 +124,7 @@ def p2g(
     pvol0: wp.array(dtype=float),
     phase: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-    domain_hi: wp.vec3,
+    geo: GridGeometry,
     mom_u: wp.array3d(dtype=float),
     mom_v: wp.array3d(dtype=float),
     mom_w: wp.array3d(dtype=float),
@@ -144,6 +142,10 @@ def p2g(
     A particle with a non-finite position or velocity is skipped and counted in nonfinite[0]: the
     step then stops with a message instead of writing outside the grid.
     """
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] > PHASE_GAS:
         return
@@ -197,10 +199,7 @@ def p2g_gas(
     law: wp.array(dtype=wp.int32),
     gamma: wp.array(dtype=float),
     p_atm: float,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-    domain_hi: wp.vec3,
+    geo: GridGeometry,
     gas_mass: wp.array3d(dtype=float),
     gas_volume: wp.array3d(dtype=float),
     gas_pv: wp.array3d(dtype=float),
@@ -208,6 +207,10 @@ def p2g_gas(
     gas_count: wp.array3d(dtype=wp.int32),
 ):
     """Gas cell state, volume-weighted: mass, current volume V0 J, p V and kappa V (runs only with gas)."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
@@ -266,16 +269,17 @@ def update_gas_J(
     phase: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     rate: wp.array3d(dtype=float),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-    domain_hi: wp.vec3,
+    geo: GridGeometry,
     dt: float,
     J: wp.array(dtype=float),
 ):
     """Gas particles take their cells' gas volume change, shared in proportion to the volume
     each contributed in p2g_gas (same weights, same positions), so the gas as a whole changes
     volume exactly as its cells do: sum_p w_pc V_p J_p = V_gas,c."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
@@ -364,11 +368,8 @@ def g2p_advect(
     gas_u: wp.array3d(dtype=float),
     gas_v: wp.array3d(dtype=float),
     gas_w: wp.array3d(dtype=float),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     dt: float,
-    domain_hi: wp.vec3,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     C: wp.array(dtype=wp.mat33),
@@ -380,6 +381,10 @@ def g2p_advect(
 ):
     """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
     (grid-resolved phases only: the effects move foam and sub-grid bubbles)."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] > PHASE_GAS:
         return

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..core.geometry import GridGeometry
 from ..core.grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
 from ..core.stage import Stage
 from ..core.grid_kernels import cell_centre, unit
@@ -109,9 +110,7 @@ def nearest_collider(shapes: wp.array(dtype=Shape), x: wp.vec3, t: float, dim: i
 def mark_collider_cells(
     shapes: wp.array(dtype=Shape),
     t: float,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     types: wp.array3d(dtype=wp.int32),
     collider_of_cell: wp.array3d(dtype=wp.int32),
 ):
@@ -121,6 +120,9 @@ def mark_collider_cells(
     cell centre however it lies on the grid (a wall exactly between two centres would otherwise
     cover none).
     """
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
     i, j, k = wp.tid()
     x = cell_centre(wp.vec3i(i, j, k), origin, dx)
     hit = nearest_collider(shapes, x, t, dim, GRID_MARGIN * dx)
@@ -158,15 +160,16 @@ def moving_collider_faces(
 def push_out_of_colliders(
     shapes: wp.array(dtype=Shape),
     t: float,
-    dx: float,
-    dim: int,
-    domain_hi: wp.vec3,
+    geo: GridGeometry,
     active: wp.array(dtype=wp.int32),
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
 ):
     """A particle inside a collider moves to its surface (along the distance gradient) and keeps
     only the velocity, relative to the collider, that does not point into it."""
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0:
         return
@@ -253,7 +256,7 @@ class ColliderStage(Stage):
     def on_cells(self, sim, dt: float):
         g = sim.grid
         sim.launch(mark_collider_cells, g.cells,
-                   [self.shapes, sim.time, sim.origin, g.dx, g.dim, sim.fields.types, self.collider_of_cell])
+                   [self.shapes, sim.time, sim.geometry, sim.fields.types, self.collider_of_cell])
 
     def on_faces(self, sim, dt: float):
         self.on_extended(sim, sim.fields.vel)
@@ -267,4 +270,4 @@ class ColliderStage(Stage):
     def end_step(self, sim, dt: float):
         p = sim.particles
         sim.launch(push_out_of_colliders, p.count,
-                   [self.shapes, sim.time + dt, sim.grid.dx, sim.grid.dim, sim.domain_hi, p.active, p.x, p.v])
+                   [self.shapes, sim.time + dt, sim.geometry, p.active, p.x, p.v])

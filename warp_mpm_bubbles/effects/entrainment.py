@@ -14,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
+from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID
 from ..core.stage import Stage
 from ..scene.effects import Entrainment
@@ -40,9 +41,7 @@ def trapped_air(
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     dt: float,
     min_speed: float,
     max_speed: float,
@@ -55,6 +54,9 @@ def trapped_air(
     spawn_v: wp.array(dtype=wp.vec3),
 ):
     """Ihmsen et al.'s trapped-air potential per liquid cell near air; appends the bubbles it seeds."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
     i, j, k = wp.tid()
     c = wp.vec3i(i, j, k)
     if types[i, j, k] != FLUID or phase_cells[i, j, k] != PHASE_LIQUID:
@@ -138,7 +140,7 @@ class EntrainmentStage(Stage):
         for _ in range(2):  # a second launch only if the buffer was too small
             self._count.zero_()
             sim.launch(trapped_air, g.cells,
-                       [f.types, f.phase_cells, *f.vel, sim.origin, g.dx, g.dim, dt, s.min_speed,
+                       [f.types, f.phase_cells, *f.vel, sim.geometry, dt, s.min_speed,
                         s.max_speed, s.rate, seed, self._capacity, self._count, self._key, self._x, self._v])
             count = int(self._count.numpy()[0])
             if count <= self._capacity:

@@ -27,6 +27,7 @@ import math
 import warp as wp
 
 from ..core import grid_kernels as gk
+from ..core.geometry import GridGeometry
 from ..core.grid import PHASE_FOAM, PHASE_GAS
 from ..core.stage import Stage
 from ..physics.gas import exposed_to_open_air
@@ -72,12 +73,8 @@ def advance_foam(
     vel_w: wp.array3d(dtype=float),
     liq_volume: wp.array3d(dtype=float),
     types: wp.array3d(dtype=wp.int32),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     dt: float,
-    domain_hi: wp.vec3,
-    gravity: wp.vec3,
     up: wp.vec3,
     rise_speed: float,
     phase: wp.array(dtype=wp.int32),
@@ -90,6 +87,11 @@ def advance_foam(
 ):
     """Age every foam particle by dt; burst the expired ones (their gas joins the atmosphere's
     ledger); move the others by the regime of the liquid fraction around them."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
+    gravity = geo.gravity
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_FOAM:
         return
@@ -120,11 +122,7 @@ def advance_foam(
 def gas_to_foam(
     types: wp.array3d(dtype=wp.int32),
     ceiling: wp.array3d(dtype=wp.int32),
-    up_axis: int,
-    up_sign: int,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     foam_material: int,
     mean_life: float,
     seed: int,
@@ -136,6 +134,11 @@ def gas_to_foam(
     life: wp.array(dtype=float),
 ):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
+    up_axis = geo.up_axis
+    up_sign = geo.up_sign
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
@@ -167,16 +170,14 @@ class FoamStage(Stage):
     def after_g2p(self, sim, dt: float):
         if not sim.has_gas:
             return  # no gas, nothing ever becomes foam
-        g, f, p = sim.grid, sim.fields, sim.particles
+        f, p = sim.fields, sim.particles
         self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
-        up_axis, up_sign = sim.up
         sim.launch(gas_to_foam, p.count,
-                   [f.types, f.ceiling, up_axis, up_sign, sim.origin, g.dx, g.dim, self.material,
-                    self.settings.lifetime, self._seed, p.x, p.active, p.phase, p.material, p.ids, p.foam_life])
+                   [f.types, f.ceiling, sim.geometry, self.material, self.settings.lifetime,
+                    self._seed, p.x, p.active, p.phase, p.material, p.ids, p.foam_life])
 
     def advance(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
+        f, p = sim.fields, sim.particles
         sim.launch(advance_foam, p.count,
-                   [*f.vel, f.liq_volume, f.types, sim.origin, g.dx, g.dim, dt, sim.domain_hi, wp.vec3(*sim.gravity),
-                    self._up, self.settings.rise_speed, p.phase, p.mass, p.foam_life, p.x, p.v, p.active,
+                   [*f.vel, f.liq_volume, f.types, sim.geometry, dt, self._up, self.settings.rise_speed, p.phase, p.mass, p.foam_life, p.x, p.v, p.active,
                     f.vented_mass])

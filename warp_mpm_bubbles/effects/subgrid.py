@@ -42,6 +42,7 @@ import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
+from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
@@ -118,10 +119,7 @@ def deposit_drag_reaction(
     phase: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
     impulse: wp.array(dtype=wp.vec3),
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-    domain_hi: wp.vec3,
+    geo: GridGeometry,
     mass_u: wp.array3d(dtype=float),
     mass_v: wp.array3d(dtype=float),
     mass_w: wp.array3d(dtype=float),
@@ -130,6 +128,10 @@ def deposit_drag_reaction(
     vel_w: wp.array3d(dtype=float),
 ):
     """The liquid gets the momentum that the drag took from each bubble in its last update."""
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_SUBGRID:
         return
@@ -153,14 +155,8 @@ def advance_subgrid(
     phase_cells: wp.array3d(dtype=wp.int32),
     ceiling: wp.array3d(dtype=wp.int32),
     pressure: wp.array3d(dtype=float),
-    up_axis: int,
-    up_sign: int,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     dt: float,
-    domain_hi: wp.vec3,
-    gravity: wp.vec3,
     rho_l: float,
     mu: float,
     p_atm: float,
@@ -178,6 +174,13 @@ def advance_subgrid(
 ):
     """Buoyancy and implicit drag for every sub-grid bubble in the liquid; the others join the
     resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those)."""
+    up_axis = geo.up_axis
+    up_sign = geo.up_sign
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
+    gravity = geo.gravity
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_SUBGRID:
         return
@@ -290,17 +293,14 @@ class SubgridBubbleStage(Stage):
         return add_bubbles(sim, positions, radii, velocities, material_index, gauge_pressure)
 
     def on_momentum(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
+        f, p = sim.fields, sim.particles
         sim.launch(deposit_drag_reaction, p.count,
-                   [p.x, p.phase, p.active, p.subgrid_impulse, sim.origin, g.dx, g.dim, sim.domain_hi, *f.face_mass,
-                    *f.vel])
+                   [p.x, p.phase, p.active, p.subgrid_impulse, sim.geometry, *f.face_mass, *f.vel])
 
     def after_g2p(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
-        up_axis, up_sign = sim.up
+        f, p = sim.fields, sim.particles
         sim.launch(advance_subgrid, p.count,
-                   [*f.vel, f.types, f.phase_cells, f.ceiling, f.pressure, up_axis, up_sign, sim.origin, g.dx, g.dim,
-                    dt, sim.domain_hi, wp.vec3(*sim.gravity), self.rho_l, self.mu, sim.scene.domain.ambient_pressure,
+                   [*f.vel, f.types, f.phase_cells, f.ceiling, f.pressure, sim.geometry, dt, self.rho_l, self.mu, sim.scene.domain.ambient_pressure,
                     p.mass, p.vol0, p.gas_law, p.gas_gamma, p.phase, p.J, p.x, p.v, p.subgrid_impulse, p.active,
                     f.max_speed])
         if (sim.stats.steps + 1) % self.settings.convert_every == 0:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..core import grid_kernels as gk
+from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.grid_kernels import cell_of, cell_type_at, unit
 from ..core.stage import Stage
@@ -91,17 +92,18 @@ def vent_exposed_gas(
     pmass: wp.array(dtype=float),
     types: wp.array3d(dtype=wp.int32),
     ceiling: wp.array3d(dtype=wp.int32),
-    up_axis: int,
-    up_sign: int,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     active: wp.array(dtype=wp.int32),
     vented_mass: wp.array(dtype=wp.float64),
 ):
     """Gas that reaches the open air joins it: the particle is retired and its mass booked as
     vented, so gas mass stays exactly accounted for.
     """
+    up_axis = geo.up_axis
+    up_sign = geo.up_sign
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
@@ -144,12 +146,12 @@ class GasStage(Stage):
         return hooks
 
     def after_p2g(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
+        f, p = sim.fields, sim.particles
         for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
             arr.zero_()
         sim.launch(p2g_gas, p.count,
                    [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
-                    sim.scene.domain.ambient_pressure, sim.origin, g.dx, g.dim, sim.domain_hi,
+                    sim.scene.domain.ambient_pressure, sim.geometry,
                     f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
 
     def on_cells(self, sim, dt: float):
@@ -182,12 +184,10 @@ class GasStage(Stage):
         sim.launch(gas_volume_rate, g.cells,
                    [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
         sim.launch(update_gas_J, p.count,
-                   [p.x, p.phase, p.active, f.gas_rate, sim.origin, g.dx, g.dim, sim.domain_hi, dt, p.J])
+                   [p.x, p.phase, p.active, f.gas_rate, sim.geometry, dt, p.J])
 
     def after_g2p(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
-        up_axis, up_sign = sim.up
+        f, p = sim.fields, sim.particles
         sim.launch(vent_exposed_gas, p.count,
-                   [p.x, p.phase, p.mass, f.types, f.ceiling, up_axis, up_sign, sim.origin, g.dx, g.dim, p.active,
-                    f.vented_mass])
+                   [p.x, p.phase, p.mass, f.types, f.ceiling, sim.geometry, p.active, f.vented_mass])
 

@@ -12,6 +12,7 @@ import math
 
 import warp as wp
 
+from ..core.geometry import GridGeometry
 from ..core.grid import INTERFACE_SHARP, PHASE_GAS
 from ..core.stage import Stage
 from ..core.grid_kernels import (
@@ -162,11 +163,8 @@ def retract_gas_films(
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
     capillary_speed: float,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
+    geo: GridGeometry,
     dt: float,
-    domain_hi: wp.vec3,
     x: wp.array(dtype=wp.vec3),
     phase: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
@@ -179,6 +177,10 @@ def retract_gas_films(
     The Laplace jump acts only on faces between liquid and gas cells, so a film under a cell's size
     feels no tension and rides the liquid away. Only the position moves: mass, velocity and J are kept.
     """
+    origin = geo.origin
+    dx = geo.dx
+    dim = geo.dim
+    domain_hi = geo.domain_hi
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
@@ -245,7 +247,6 @@ class TensionStage(Stage):
                        [f.types, f.phase_cells, level, self.curvature, f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a]])
 
     def after_g2p(self, sim, dt: float):
-        g, f, p = sim.grid, sim.fields, sim.particles
+        f, p = sim.fields, sim.particles
         sim.launch(retract_gas_films, p.count,
-                   [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.origin, g.dx, g.dim, dt, sim.domain_hi,
-                    p.x, p.phase, p.active])
+                   [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.geometry, dt, p.x, p.phase, p.active])

@@ -261,8 +261,8 @@ def check_output(stage_path, *, overwrite: bool, resume: bool) -> dict | None:
         foreign.insert(0, stage.name)
     if resume:
         if marker is None or not stage.exists():
-            raise OutputError(f"nothing to resume at {stage}: no output this project wrote is there; "
-                              f"run without --resume")
+            raise SimulationError(f"nothing to resume: no output this project wrote at {stage}; "
+                                  f"run without --resume")  # exit code 1, as before ownership
         return marker  # resuming deletes only the project's frames past the checkpoint
     if foreign:
         raise ForeignFiles(_foreign_message(f"{stage} cannot be written: {fdir.parent} holds files "

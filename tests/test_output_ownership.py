@@ -209,6 +209,21 @@ def test_a_shorter_rerun_leaves_exactly_one_run(tmp_path):
         assert int(ck["frame"]) == 2
 
 
+KILL_LEFTOVERS = ("t.000002.tmp-999-abcdef.usdc", "t.000002.tmp-999-abcdef.Xy12Zq",  # ours, USD's temp
+                  "checkpoint.tmp-999-abcdef.npz", "t.tmp-999-0a1b2c.usdc")
+
+
+@pytest.mark.parametrize("how", ["overwrite", "resume"])
+def test_temp_files_a_killed_run_left_are_the_projects_own(tmp_path, how):
+    sc = scene(tmp_path, frames=2)
+    run(sc)
+    fdir = Path(sc.output.path).with_name("t_frames")
+    for name in KILL_LEFTOVERS:
+        (fdir / name).write_bytes(b"half")
+    run(sc.replace_output(frames=3), **{how: True})
+    assert_one_run(Path(sc.output.path), 3)  # also: no temp left
+
+
 # ------------------------------------------------------------------------------------ full disk
 def test_a_full_disk_during_a_frame_is_a_named_error_keeping_the_finished_frames(tmp_path, monkeypatch):
     sc = scene(tmp_path, frames=5)
@@ -281,7 +296,7 @@ def test_a_usd_write_error_becomes_an_os_error_naming_the_file(tmp_path):
 def test_two_runs_half_a_second_apart_one_completes_the_other_refuses(tmp_path):
     toml = tmp_path / "own.toml"
     out = tmp_path / "race.usdc"
-    toml.write_text(SCENE_TOML.format(out=out.as_posix(), frames=12))
+    toml.write_text(SCENE_TOML.format(out=out.as_posix(), frames=8))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     cmd = [sys.executable, "-m", "warp_mpm_bubbles.cli", "run", str(toml), "--quiet", "--device", "cpu"]
     first = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -293,4 +308,4 @@ def test_two_runs_half_a_second_apart_one_completes_the_other_refuses(tmp_path):
         assert "Traceback" not in err
         if rc == 2:  # refused: by the lock while the other ran, or the output it had finished
             assert err.startswith("error: ") and ("being written by another run" in err or "already exists" in err)
-    assert_one_run(out, 12)
+    assert_one_run(out, 8)

@@ -26,7 +26,8 @@ from ..core.simulation import SimulationError
 
 MARKER = ".warp_mpm_bubbles"
 LAYER_KEY = "warp_mpm_bubbles"  # customLayerData key of the top layer and of every frame layer
-_TEMP = re.compile(r".+\.tmp-\d+-[0-9a-f]{6}\.(usdc|usda|usd|npz|json)$")
+# Our temp names, and USD's own temp beside them (Export writes <stem>.XXXXXX, then renames).
+_TEMP = re.compile(r".+\.tmp-\d+-[0-9a-f]{6}\.(usdc|usda|usd|npz|json|[A-Za-z0-9]{6})$")
 _CHOICES = ("choose one: --overwrite to replace it (overwrite=True in run_scene), --resume to continue "
             "it from its last checkpoint, or another --stage-path")
 

@@ -20,8 +20,8 @@ from warp_mpm_bubbles.cli import main, run_example
 from warp_mpm_bubbles.core.simulation import Simulation, SimulationError
 from warp_mpm_bubbles.io import checkpoint as checkpoint_module
 from warp_mpm_bubbles.io import runner, usd_output
-from warp_mpm_bubbles.io.ownership import (MARKER, ForeignFiles, OutputExists, OutputLock, OutputLocked,
-                                           OutputWriteError, lock_path)
+from warp_mpm_bubbles.io.ownership import (MARKER, ForeignFiles, OutputError, OutputExists, OutputLock,
+                                           OutputLocked, OutputWriteError, lock_path)
 from warp_mpm_bubbles.io.usd_output import read_frames
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,6 +98,12 @@ def test_a_lock_from_another_host_is_never_taken_over(tmp_path, capsys):
     assert err.startswith("error: ") and "pid 4242 on host render-node-7" in err
     assert "cannot be checked from here" in err and "Traceback" not in err
     assert lock_path(tmp_path / "o.usdc").exists() and not (tmp_path / "o.usdc").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").exists(), reason="needs Linux /proc")
+def test_an_unwritable_place_is_a_named_error(tmp_path):
+    with pytest.raises(OutputError, match="cannot create the lock /proc/self/none/o.usdc.lock: .*writable --stage-path"):
+        usd_output.StageWriter("/proc/self/none/o.usdc", fps=24, materials=[("w", (0, 0, 1))], particle_radius=0.01)
 
 
 def dead_pid() -> int:

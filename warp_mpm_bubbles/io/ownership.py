@@ -144,9 +144,9 @@ class OutputLock:
                 "started": _now(), "run_id": self.run_id}
 
     def acquire(self) -> "OutputLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         for _ in range(5):  # each retry follows a lock that vanished or a stale one removed
             try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 holder = self._holder()
@@ -156,6 +156,9 @@ class OutputLock:
                     raise OutputLocked(self._locked_message(holder)) from None
                 self._take_over(holder)
                 continue
+            except OSError as err:  # the first write of a run: an unwritable place shows here
+                raise OutputError(f"cannot create the lock {self.path}: {err.strerror or err}; choose a "
+                                  f"writable --stage-path") from None
             try:
                 os.write(fd, json.dumps(self._info()).encode())
                 os.fsync(fd)

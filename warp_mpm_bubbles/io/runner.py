@@ -114,7 +114,8 @@ def _frame_loop(sim: Simulation, claim, resume_after, log) -> None:
     except OSError as err:
         if bar and bar.tty:
             log.write("\n")
-        raise write_failed(err, out.path, writer.last_frame if writer else None, saved) from err
+        kept = writer.last_frame if writer else resume_after  # a resumed output keeps its frames
+        raise write_failed(err, out.path, kept, saved) from err
 
 
 def _write(sim: Simulation, writer: StageWriter, checkpoint) -> int:

@@ -102,6 +102,8 @@ def _proc_start(pid: int) -> int | None:
 
 
 def pid_alive(pid: int, proc_start: int | None = None) -> bool:
+    if os.name == "nt":
+        return True  # os.kill(pid, 0) would terminate it there: never judge a lock stale
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

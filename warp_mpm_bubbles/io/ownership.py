@@ -261,8 +261,9 @@ def check_output(stage_path, *, overwrite: bool, resume: bool) -> dict | None:
     marker = _read_json(fdir / MARKER) if MARKER in entries else None
     if entries and marker is None:
         raise ForeignFiles(_foreign_message(f"{fdir} has no {MARKER} marker, so this project did not make "
-                                            f"it; it holds", entries))
-    foreign = [name for name in entries if not is_own_file(name, stage.stem) or (fdir / name).is_dir()]
+                                            f"it; it holds", [f"{fdir.name}/{n}" for n in entries]))
+    foreign = [f"{fdir.name}/{name}" for name in entries
+               if not is_own_file(name, stage.stem) or (fdir / name).is_dir()]
     if stage.exists() and stage_run_id(stage) is None:
         foreign.insert(0, stage.name)
     if resume:

@@ -202,6 +202,19 @@ def test_files_the_project_did_not_write_are_never_deleted(tmp_path, case):
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 
+def test_resume_keeps_foreign_files_and_never_rewrites_a_foreign_stage(tmp_path):
+    sc = scene(tmp_path, frames=1)
+    run(sc)
+    notes = Path(sc.output.path).with_name("t_frames") / "notes.txt"
+    notes.write_text("the user's work")
+    run(sc.replace_output(frames=2), resume=True)
+    assert notes.read_text() == "the user's work" and read_frames(sc.output.path)["end"] == 2
+    Path(sc.output.path).write_text("the user's stage")
+    with pytest.raises(ForeignFiles, match="cannot be resumed: it was not written by this project"):
+        run(sc.replace_output(frames=3), resume=True)
+    assert Path(sc.output.path).read_text() == "the user's stage" and notes.exists()
+
+
 def test_a_shorter_rerun_leaves_exactly_one_run(tmp_path):
     """The 30-then-10-frames row of the issue, at 6 then 2 frames."""
     sc = scene(tmp_path, frames=6)

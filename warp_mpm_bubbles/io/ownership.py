@@ -270,6 +270,9 @@ def check_output(stage_path, *, overwrite: bool, resume: bool) -> dict | None:
         if marker is None or not stage.exists():
             raise SimulationError(f"nothing to resume: no output this project wrote at {stage}; "
                                   f"run without --resume")  # exit code 1, as before ownership
+        if foreign[:1] == [stage.name]:  # resuming rewrites the top file: it must be ours
+            raise ForeignFiles(_foreign_message(f"{stage} cannot be resumed: it was not written by this "
+                                                f"project", [stage.name]))
         return marker  # resuming deletes only the project's frames past the checkpoint
     if foreign:
         raise ForeignFiles(_foreign_message(f"{stage} cannot be written: {fdir.parent} holds files "

@@ -5,6 +5,8 @@ Storage layout (value clips)::
     out/sim.usdc                    top-level stage: /World, prototypes, metadata, clip template
     out/sim_frames/manifest.usdc    declares which attributes come from the clips
     out/sim_frames/sim.000042.usdc  time samples of frame 42 only
+    out/sim_frames/.warp_mpm_bubbles  marker: the run id; only marked folders are ever cleared
+    out/sim.usdc.lock               while a run writes (io/ownership.py)
 
 Why not one .usdc saved after every frame: its save time is flat (crate appends in place,
 ~3 ms/frame for 50k particles, same at frame 1 and 200), but that in-place append first

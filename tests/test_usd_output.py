@@ -130,7 +130,7 @@ def test_points_round_trip(tmp_path, fmt):
 def test_frame_gaps_empty_frames_and_overwrite(tmp_path):
     path = tmp_path / "sim.usdc"
     write(path, counts={0: 10, 1: 10, 2: 10, 3: 10})
-    data = write(path, counts={2: 5, 5: 0, 9: 7})  # overwrite: old frames must disappear
+    data = write(path, counts={2: 5, 5: 0, 9: 7}, overwrite=True)  # old frames must disappear
     check_read_frames(path, data)
     assert len(list((tmp_path / "sim_frames").glob("sim.0*.usdc"))) == 3
 

@@ -20,6 +20,8 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--resume", action="store_true",
                         help="continue a killed run from its last checkpoint, keeping its frames")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing output (only files this project wrote are deleted)")
 
 
 def scene_with_overrides(path, args) -> "object":
@@ -53,10 +55,11 @@ def _run(scene, args) -> int:
     from .core.simulation import SimulationError
 
     try:
-        run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume)
+        run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume,
+                  overwrite=args.overwrite)
     except SimulationError as err:
         print(f"error: {err}", file=sys.stderr)
-        return 1
+        return getattr(err, "exit_code", 1)  # io/ownership.py: 2 for a refused output, 1 for a failed write
     return 0
 
 

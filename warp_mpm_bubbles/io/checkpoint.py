@@ -33,19 +33,29 @@ def _fingerprint(scene) -> str:
 
 
 def save_checkpoint(sim, path) -> None:
-    """Write atomically (temporary file, fsync, rename): a kill leaves the previous checkpoint."""
+    """Write atomically (temporary file, fsync, rename): a kill leaves the previous checkpoint.
+    The temp name is this process's own; a failed write (a full disk) removes it and raises
+    OSError naming `path`, keeping the previous checkpoint."""
+    from .ownership import temp_path
+
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        particles = sim.particles
-        np.savez(f, **{f"particle_{name}": particles.numpy(name) for name in particles.fields},
-                 **{name: getattr(sim.fields, name).numpy() for name in GRID_CHECKPOINT},
-                 **{f"host_{name}": value for name, value in sim.host_state.items()},
-                 time=sim.time, frame=sim.frame, max_speed=sim.max_particle_speed, steps=sim.stats.steps,
-                 fingerprint=_fingerprint(sim.scene))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    tmp = temp_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            particles = sim.particles
+            np.savez(f, **{f"particle_{name}": particles.numpy(name) for name in particles.fields},
+                     **{name: getattr(sim.fields, name).numpy() for name in GRID_CHECKPOINT},
+                     **{f"host_{name}": value for name, value in sim.host_state.items()},
+                     time=sim.time, frame=sim.frame, max_speed=sim.max_particle_speed, steps=sim.stats.steps,
+                     fingerprint=_fingerprint(sim.scene))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        if err.filename is None or Path(err.filename) == tmp:
+            err.filename = str(path)
+        raise
 
 
 def load_checkpoint(sim, path) -> None:

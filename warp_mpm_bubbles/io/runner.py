@@ -14,6 +14,7 @@ import numpy as np
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
+from .ownership import OutputClaim, write_failed
 from .usd_colliders import write_colliders
 from .usd_output import StageWriter
 
@@ -54,49 +55,70 @@ def _clock(seconds: float) -> str:
     return f"{m}m{s:02d}s" if m else f"{s}s"
 
 
-def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bool = False) -> RunResult:
+def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bool = False,
+              overwrite: bool = False) -> RunResult:
     """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path.
 
-    After every frame a checkpoint is saved beside the frames; resume=True continues from it
-    (a killed run), keeping the frames already written. Progress and the closing summary go to
-    `log` (default: the sys.stderr of the moment).
+    The output is locked for the run (a second run on it is refused, naming the holder) and an
+    existing one is replaced only with overwrite=True, which deletes only files this project
+    wrote; both are checked before any simulation work (io/ownership.py). After every frame a
+    checkpoint is saved beside the frames; resume=True continues from it (a killed run), keeping
+    the frames already written. A failed write (a full disk) raises OutputWriteError, keeping the
+    finished frames. Progress and the closing summary go to `log` (default: the sys.stderr of
+    the moment).
     """
     log = log or sys.stderr
     start = time.perf_counter()
-    sim = Simulation(scene, device=device)
     out = scene.output
     checkpoint = checkpoint_path(out.path)
-    resume_after = None
-    if resume:
-        if not checkpoint.exists():
+    with OutputClaim(out.path, overwrite=overwrite, resume=resume, log=log) as claim:
+        if resume and not checkpoint.exists():
             raise SimulationError(f"nothing to resume: no checkpoint at {checkpoint}; run without --resume")
-        load_checkpoint(sim, checkpoint)
-        resume_after = sim.frame
-        if progress:
-            log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
-    materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
-    bar = ProgressBar(out.frames, stream=log) if progress else None
-    decorate = None
-    if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
-        def decorate(stage):
-            write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
-    with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
-                     format=out.format, up_axis=out.up_axis, resume_after=resume_after,
-                     decorate=decorate) as writer:
-        if resume_after is None:
-            _write(sim, writer, checkpoint)
-        while sim.frame < out.frames:
-            sim.advance_frame()
-            _write(sim, writer, checkpoint)
-            if bar:
-                bar.update(sim.frame, sim.time, sim.stats.steps)
+        sim = Simulation(scene, device=device)
+        resume_after = None
+        if resume:
+            load_checkpoint(sim, checkpoint)
+            resume_after = sim.frame
+            if progress:
+                log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
+        _frame_loop(sim, claim, resume_after, log if progress else None)
     result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
     if progress:
         log.write(summary(result) + "\n")
     return result
 
 
-def _write(sim: Simulation, writer: StageWriter, checkpoint):
+def _frame_loop(sim: Simulation, claim, resume_after, log) -> None:
+    """Write frames until scene.output.frames; a failed write becomes OutputWriteError."""
+    scene, out = sim.scene, sim.scene.output
+    checkpoint = checkpoint_path(out.path)
+    materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
+    bar = ProgressBar(out.frames, stream=log) if log else None
+    decorate = None
+    if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
+        def decorate(stage):
+            write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
+    writer, saved = None, resume_after  # saved: the frame the checkpoint on disk resumes after
+    try:
+        writer = StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
+                             format=out.format, up_axis=out.up_axis, resume_after=resume_after,
+                             decorate=decorate, claim=claim)
+        with writer:
+            if resume_after is None:
+                saved = _write(sim, writer, checkpoint)
+            while sim.frame < out.frames:
+                sim.advance_frame()
+                saved = _write(sim, writer, checkpoint)
+                if bar:
+                    bar.update(sim.frame, sim.time, sim.stats.steps)
+    except OSError as err:
+        if bar and bar.tty:
+            log.write("\n")
+        kept = writer.last_frame if writer else resume_after  # a resumed output keeps its frames
+        raise write_failed(err, out.path, kept, saved) from err
+
+
+def _write(sim: Simulation, writer: StageWriter, checkpoint) -> int:
     """The frame first (durable when write_frame returns), then the checkpoint that resumes after it."""
     with sim.timer("output"):
         p = sim.particles_numpy()
@@ -105,6 +127,7 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint):
             radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
         writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
         save_checkpoint(sim, checkpoint)
+    return sim.frame
 
 
 def summary(result: RunResult) -> str:

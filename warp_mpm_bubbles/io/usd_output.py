@@ -5,6 +5,8 @@ Storage layout (value clips)::
     out/sim.usdc                    top-level stage: /World, prototypes, metadata, clip template
     out/sim_frames/manifest.usdc    declares which attributes come from the clips
     out/sim_frames/sim.000042.usdc  time samples of frame 42 only
+    out/sim_frames/.warp_mpm_bubbles  marker: the run id; only marked folders are ever cleared
+    out/sim.usdc.lock               while a run writes (io/ownership.py)
 
 Why not one .usdc saved after every frame: its save time is flat (crate appends in place,
 ~3 ms/frame for 50k particles, same at frame 1 and 200), but that in-place append first
@@ -19,13 +21,15 @@ opening the top file; move the top file together with its ``*_frames`` folder.
 
 from __future__ import annotations
 
+import errno
 import os
-import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+
+from .ownership import LAYER_KEY, OutputClaim, temp_path
 
 FORMATS = ("instancer", "points", "both")
 INSTANCER = "/World/Particles"
@@ -50,15 +54,35 @@ def _fsync(path: Path, flags: int) -> None:
         os.close(fd)
 
 
-def _atomic_export(layer: Sdf.Layer, path: Path) -> None:
-    """Export to a temp file, fsync, rename: readers see the old or the new file, never half."""
-    tmp = path.with_name(path.stem + ".tmp" + path.suffix)  # suffix picks the file format
-    if not layer.Export(str(tmp)):
-        raise OSError(f"USD could not write {tmp}")
-    _fsync(tmp, os.O_RDWR)
-    os.replace(tmp, path)
+def _atomic_export(layer: Sdf.Layer, path: Path, tmp_dir: Path | None = None) -> None:
+    """Export to a temp file, fsync, rename: readers see the old or the new file, never half.
+    The temp name is unique to this process (a shared one let two runs rename each other's file:
+    the FileNotFoundError of issue #14); a failed write removes it and raises OSError naming `path`."""
+    tmp = temp_path((tmp_dir or path.parent) / path.name)  # same suffix: it picks the file format
+    try:
+        try:
+            ok = layer.Export(str(tmp))
+        except Tf.ErrorException as err:  # USD reports the OS error as text
+            text = str(err)
+            code = next((c for c, words in _OS_ERRORS if words in text), errno.EIO)
+            raise OSError(code, f"{os.strerror(code)} (USD: {text.strip().splitlines()[-1].strip()})",
+                          str(path)) from None
+        if not ok:
+            raise OSError(errno.EIO, "USD could not write the file", str(path))
+        _fsync(tmp, os.O_RDWR)
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        if err.filename is None or Path(err.filename) == tmp:
+            err.filename = str(path)
+        raise
     if os.name == "posix":  # persist the rename too, so frames reach disk before the top file
         _fsync(path.parent, os.O_RDONLY)
+
+
+_OS_ERRORS = [(errno.ENOSPC, "No space left on device"), (errno.EDQUOT, "quota exceeded"),
+              (errno.EFBIG, "File too large"), (errno.EACCES, "Permission denied"),
+              (errno.EROFS, "Read-only file system")]
 
 
 class StageWriter:
@@ -66,10 +90,14 @@ class StageWriter:
 
     def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
                  particle_radius: float, format: str = "instancer", up_axis: str = "Y",
-                 meters_per_unit: float = 1.0, resume_after: int | None = None, decorate=None):
+                 meters_per_unit: float = 1.0, resume_after: int | None = None, decorate=None,
+                 overwrite: bool = False, claim: OutputClaim | None = None):
         """resume_after=k keeps the frames already on disk up to k (a resumed run) and goes on
-        from k + 1; otherwise an existing output is replaced. decorate(stage), if given, adds
-        prims that do not change per frame (or are sampled up front: colliders) to the top layer."""
+        from k + 1; otherwise an existing output is refused (OutputExists) unless overwrite=True,
+        which deletes only the files this project wrote. claim: an OutputClaim the caller already
+        holds (run_scene, which claims before building the simulation); without one the writer
+        takes its own and releases it on close(). decorate(stage), if given, adds prims that do
+        not change per frame (or are sampled up front: colliders) to the top layer."""
         t0 = time.perf_counter()
         if format not in FORMATS:
             raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
@@ -93,29 +121,37 @@ class StageWriter:
         self._manifest = self._frames_dir / ("manifest" + ext)
         self._last = None
         self._closed = False
+        self._own_claim = claim is None
+        self._claim = claim or OutputClaim(self.path, overwrite=overwrite,
+                                           resume=resume_after is not None).__enter__()
+        try:
+            self._open(materials, fps, up_axis, meters_per_unit, resume_after, decorate)
+        except BaseException:
+            self.close()
+            raise
+        self.seconds += time.perf_counter() - t0
 
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+    def _open(self, materials, fps, up_axis, meters_per_unit, resume_after, decorate) -> None:
+        """Trim or clear the output (the claim checked it is ours), then write manifest and top."""
         start = None
         if resume_after is not None:
-            if not self.path.exists():
-                raise FileNotFoundError(f"cannot resume: {self.path} does not exist")
             start = Sdf.Layer.OpenAsAnonymous(str(self.path)).startTimeCode  # not the layer cache
-        else:
-            # Overwrite: drop the old top file first so it never points at missing frames.
-            self.path.unlink(missing_ok=True)
-            shutil.rmtree(self._frames_dir, ignore_errors=True)
-            self._frames_dir.mkdir()
-
+        self._claim.prepare(resume_after)
+        self._meta = {"run_id": self._claim.run_id}
         self._top = self._build_top(materials, fps, up_axis, meters_per_unit, decorate)
-        manifest = Sdf.Layer.CreateAnonymous(ext)
+        self._top.customLayerData = {LAYER_KEY: self._meta}
+        manifest = Sdf.Layer.CreateAnonymous(self._ext)
         self._declare(manifest)
         _atomic_export(manifest, self._manifest)
         if start is None:
-            _atomic_export(self._top, self.path)  # valid (empty) stage even before frame 0
+            self._export_top()  # valid (empty) stage even before frame 0
         else:
             self._top.startTimeCode = start
             self._publish(int(resume_after))  # the kept frames stay visible from the first moment
-        self.seconds += time.perf_counter() - t0
+
+    def _export_top(self) -> None:
+        # its temp goes in the frames folder: a kill leaves nothing stray beside the stage
+        _atomic_export(self._top, self.path, tmp_dir=self._frames_dir)
 
     def _build_top(self, materials, fps, up_axis, meters_per_unit, decorate=None) -> Sdf.Layer:
         layer = Sdf.Layer.CreateAnonymous(self._ext)  # we hold it, not the stage
@@ -205,6 +241,7 @@ class StageWriter:
             values[POINTS, "primvars:displayColor"] = Vt.Vec3fArray.FromNumpy(self._colors[mat])
 
         layer = Sdf.Layer.CreateAnonymous(self._ext)
+        layer.customLayerData = {LAYER_KEY: self._meta}  # which run wrote this frame
         for key, attr_path in self._declare(layer).items():
             layer.SetTimeSample(attr_path, frame, values[key])
         name = f"{self.path.stem}.{frame:06d}{self._ext}"
@@ -229,7 +266,7 @@ class StageWriter:
             "templateStride": 1.0,
             "manifestAssetPath": Sdf.AssetPath(f"./{self._frames_dir.name}/{self._manifest.name}"),
         }})
-        _atomic_export(self._top, self.path)
+        self._export_top()
         self._last = frame
 
     def _validate(self, frame, positions, velocities, ids, material):
@@ -260,9 +297,23 @@ class StageWriter:
             raise ValueError(f"frame {frame}: radii must be finite and > 0")
         return rad
 
+    @property
+    def last_frame(self) -> int | None:
+        """The last frame published in the top file (None before the first)."""
+        return self._last
+
     def close(self) -> None:
-        # Nothing to flush: every frame was made durable in write_frame.
+        # Nothing to flush: every frame was made durable in write_frame. Release a lock we took.
         self._closed = True
+        if self._own_claim and self._claim is not None:
+            self._claim.__exit__(None, None, None)
+            self._claim = None
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: the lock then reads as stale (pid gone)
+            pass
 
     def __enter__(self):
         return self

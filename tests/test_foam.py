@@ -156,7 +156,7 @@ def test_foam_on_changes_only_what_becomes_of_the_surfaced_gas(tmp_path):
     same = ~foamed  # the liquid and the gas still under water
     assert (phase_on[same] != PHASE_FOAM).all() and (phase_on[same] == PHASE_LIQUID).sum() > 0
     for name in ("x", "v", "J", "C", "active", "material"):
-        assert np.array_equal(getattr(on, name).numpy()[:n][same], getattr(off, name).numpy()[:n][same]), name
+        assert np.array_equal(on.particles.numpy(name)[same], off.particles.numpy(name)[same]), name
     assert (on.particles.material.numpy()[:n][foamed] == list(on.scene.materials).index("foam")).all()
     # The gas's mass: foam plus burst on one side, vented on the other; both totals exact.
     b_on, b_off = on.gas_budget(), off.gas_budget()

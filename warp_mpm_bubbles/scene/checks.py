@@ -82,8 +82,8 @@ class _Checker:
         x = int(v) if whole else float(v)
         failed = [name for name, _, test in _LIMITS if name in limits and not test(x, limits[name])]
         if failed:
-            why = getattr(limits[failed[0]], "why", "")
-            self.fail(key, v, f"must be {allowed}" + (f" ({_g(limits[failed[0]])} {why})" if why else ""))
+            reasons = [limits[name] for name in failed if getattr(limits[name], "why", "")]
+            self.fail(key, v, f"must be {allowed}" + (f" ({_g(reasons[0])} {reasons[0].why})" if reasons else ""))
         return x
 
     def magnitude(self, key, vector, limit, what="its magnitude"):

@@ -43,7 +43,6 @@ MAX_SURFACE_TENSION = Limit(3.0, "N/m: molten metals reach about 2 (water 0.072)
 MIN_AMBIENT = Limit(1.0, "Pa: near vacuum; the gas law divides by it")
 MAX_PRESSURE = Limit(1.0e9, "Pa: 10,000 atmospheres, where water itself compresses by a third")
 MIN_CELL = Limit(1.0e-6, "m: one micrometre; below it the continuum model and float32 positions fail")
-MAX_SIZE = Limit(1.0e4, "m: float32 positions keep about 7 digits, so 1 mm detail needs a domain under 10 km")
 MAX_GAMMA = Limit(3.0, "the adiabatic index of real gases lies between 1 and 5/3")
 MAX_CG_ITERATIONS = Limit(1_000_000, "iterations: beyond this a solve that has not converged never will")
 MAX_VOLUME_CORRECTION = Limit(1.0, "a share of the over-fill undone per step; above 1 it overshoots")
@@ -56,7 +55,7 @@ LIMITS = {  # key -> bound, for docs/api.md and the README
     "[materials.*].density (min)": MIN_DENSITY, "[materials.*].density (max)": MAX_DENSITY,
     "[materials.*].viscosity": MAX_VISCOSITY, "[materials.*].surface_tension": MAX_SURFACE_TENSION,
     "[domain].ambient_pressure (min)": MIN_AMBIENT, "[domain].ambient_pressure, [shapes].pressure": MAX_PRESSURE,
-    "[domain].cell_size (min)": MIN_CELL, "[domain].size (each)": MAX_SIZE, "[materials.*].gamma": MAX_GAMMA,
+    "[domain].cell_size (min)": MIN_CELL, "[materials.*].gamma": MAX_GAMMA,
     "[solver].cg_max_iterations": MAX_CG_ITERATIONS, "[solver].volume_correction": MAX_VOLUME_CORRECTION,
 }
 

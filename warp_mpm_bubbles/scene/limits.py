@@ -120,7 +120,7 @@ def check_steps(c, scene):
 
 # ------------------------------------------------------------------------------------ memory
 PARTICLE_DEVICE_BYTES = 104  # x, v vec3; C mat33; mass, vol0, J, phase, active, material, gas_law, gas_gamma; ids int64
-PARTICLE_HOST_BYTES = 260  # seeding (float64 samples, float32 results) and Simulation.add_particles' numpy copies
+PARTICLE_HOST_BYTES = 160  # seeding (float64 samples, float32 results) and Simulation.add_particles' numpy copies
 EFFECT_PARTICLE_BYTES = 32  # foam, sub-grid bubbles and emitters add their own per-particle fields
 FACE_ARRAYS, GAS_FACE_ARRAYS = 21, 6  # 7 face fields x 3 axes; the gas's own field with a sharp interface
 CELL_ARRAYS, GAS_CELL_ARRAYS = 9 + 4, 8  # state, system and the PCG vectors; gas mass, volume, law terms

@@ -144,7 +144,7 @@ def estimate_particles(scene) -> int:
             box *= math.pi / 4
         total += box / dx**dim * ppc
     cells = math.prod(d.cells[:dim])
-    return int(min(total, cells * ppc))
+    return round(min(total, cells * ppc))
 
 
 def estimate_memory(scene) -> dict[str, float]:

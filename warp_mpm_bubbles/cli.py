@@ -168,6 +168,8 @@ def _preview(args) -> int:
 
     try:
         frames = parse_frames(args.frames)
+        if not Path(args.stage).name:
+            raise PreviewError(f"{args.stage!r}: give the .usdc (.usd, .usda) file that `run` wrote")
         png = args.png or str(Path(args.stage).with_suffix(".png"))
         print(render_preview(args.stage, png, frames, title=Path(args.stage).stem))
     except PreviewError as err:

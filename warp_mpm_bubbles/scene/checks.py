@@ -90,7 +90,7 @@ class _Checker:
         """Refuse a vector longer than `limit` (a scene.limits.Limit: its reason is given)."""
         norm = math.hypot(*vector)
         if norm > limit:
-            self.fail(key, vector, f"{what} {norm:.3g} exceeds {_g(limit)} {getattr(limit, 'why', '')}".rstrip())
+            self.fail(key, vector, f"{what} {norm:.6g} exceeds {_g(limit)} {getattr(limit, 'why', '')}".rstrip())
         return vector
 
     def vector(self, key, v, n, why="", **limits):

@@ -25,7 +25,7 @@ SEED_CHECK_PARTICLES = 2_000_000  # `run` seeds once more to check colliders lea
 def num_frames(text: str) -> int:
     """--num-frames: a whole number from 1 to MAX_FRAMES (argparse turns the ValueError into exit 2)."""
     t = text.strip()
-    if not t.isdigit():
+    if not (t.isascii() and t.isdigit()) or len(t) > 30:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of frames; give 1 to {int(MAX_FRAMES):,}")
     n = int(t)
     if not 1 <= n <= MAX_FRAMES:

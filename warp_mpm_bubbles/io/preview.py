@@ -28,7 +28,7 @@ def parse_frames(text: str | None) -> list[int] | None:
     frames = []
     for part in text.split(","):
         part = part.strip()
-        if not part.isdigit() or len(part) > 9:
+        if not (part.isascii() and part.isdigit()) or len(part) > 9:
             raise PreviewError(f"--frames {text!r}: {part!r} is not a frame number; give whole numbers >= 0 "
                                f"separated by commas, e.g. --frames 0,12,24")
         frames.append(int(part))

@@ -147,6 +147,24 @@ def estimate_particles(scene) -> int:
     return round(min(total, cells * ppc))
 
 
+def slab_bytes(scene) -> float:
+    """Host bytes to sample one x-slab of cells (seeding and validation do it slab by slab):
+    the random keys, the argsort and the float64 positions of every sub-cell of the y-z section."""
+    d = scene.domain
+    k = 1
+    while k**scene.dim < scene.solver.particles_per_cell:
+        k += 1
+    return math.prod(d.cells[1:scene.dim]) * k**scene.dim * 8 * (3 + scene.dim)
+
+
+def check_sampling(scene):
+    """Refuse before sampling a slab of cells that does not fit in the host's memory (a domain
+    thin in x with a huge y-z section would otherwise die in numpy inside validation)."""
+    need, have = HEADROOM * slab_bytes(scene), host_available()
+    if have is not None and need > have:
+        raise MemoryLimitError(scene, estimate_memory(scene), "host memory to sample one slab of cells", need, have)
+
+
 def estimate_memory(scene) -> dict[str, float]:
     """Bytes the run needs: "particles", "grid" (both on the device) and "host" (the host's share
     besides the device arrays: seeding and copies), with "count" and "cells"."""
@@ -162,7 +180,7 @@ def estimate_memory(scene) -> dict[str, float]:
         "count": count, "cells": cells,
         "particles": HEADROOM * count * (PARTICLE_DEVICE_BYTES + (EFFECT_PARTICLE_BYTES if extra else 0)),
         "grid": HEADROOM * cells * 4 * arrays,
-        "host": HEADROOM * count * PARTICLE_HOST_BYTES,
+        "host": HEADROOM * (count * PARTICLE_HOST_BYTES + slab_bytes(scene)),
     }
 
 

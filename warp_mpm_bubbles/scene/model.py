@@ -27,7 +27,7 @@ from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from .limits import (
     MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED,
     MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY, MAX_VOLUME_CORRECTION, MIN_AMBIENT,
-    MIN_CELL, MIN_DENSITY, MIN_FPS, check_steps,
+    MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
 )
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere, _Shape  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
@@ -409,7 +409,8 @@ class Scene:
         for i, item in enumerate(self.colliders):
             self._check_speed(c, f"[colliders.{i}]", item)
         check_steps(c, self)  # a first frame needing millions of steps would run silently for hours
-        # Last: the only check that generates samples.
+        # Last: the only check that generates samples (after making sure one slab of them fits).
+        check_sampling(self)
         ppc, seed = self.solver.particles_per_cell, self.solver.seed
         for i, s in enumerate(self.shapes):
             if not shape_seeds_particles(s, self.domain, ppc, seed):

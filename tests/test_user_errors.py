@@ -384,7 +384,7 @@ def test_step_limits_match_the_simulations_stable_dt(tmp_path):
 def test_a_huge_cross_section_is_refused_before_validation_samples_it(tmp_path, monkeypatch):
     # 4 x 16384 x 16384 cells (within the 2^30 cap): one slab of samples would be 1e11 bytes
     monkeypatch.setattr(limits, "host_available", lambda: 16 * 10**9)
-    scene = Scene(Domain((0.004, 16.384, 16.384), 0.001), {"w": Material("w")}, [Box("w", (0, 0, 0), (0.004, 0.01, 0.01))],
-                  output=Output(path=str(tmp_path / "s.usdc")))
+    scene = Scene(Domain((0.004, 16.384, 16.384), 0.001), {"w": Material("w")},
+                  [Box("w", (0, 0, 0), (0.004, 0.01, 0.01))], output=Output(path=str(tmp_path / "s.usdc")))
     with pytest.raises(limits.MemoryLimitError, match=r"needs about 1\d\d GB of host memory to sample one slab"):
         scene.validate()

@@ -21,7 +21,7 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from .checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
+from .checks import AXES, SceneError, _Checker, _g, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from .limits import (

@@ -333,6 +333,10 @@ def test_a_frame_needing_too_many_steps_stops_before_it_starts(name):
     assert frame_step_guard(FakeSim({"cfl": 1e-3})) == pytest.approx(1 / 30 / 1e-3)
     with pytest.raises(FrameTooLongError):
         frame_step_guard(FakeSim({"cfl": 1e-3}), max_steps_per_frame=10)
+    # mid-frame: what is left of the frame counts (1e-3 s left at 1e-9 s steps: 1e6 steps)
+    assert frame_step_guard(FakeSim({"cfl": 1e-3}), remaining=0.01) == pytest.approx(10)
+    with pytest.raises(FrameTooLongError, match="1e\\+06 steps"):
+        frame_step_guard(FakeSim({"cfl": 1e-9}), remaining=1e-3)
 
 
 def test_the_guard_falls_back_to_stable_dt():

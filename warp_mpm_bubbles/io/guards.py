@@ -37,16 +37,17 @@ def dt_limits(sim) -> dict[str, float]:
     return {k: float(v) for k, v in limits.items() if v is not None and not math.isnan(v)} or {"cfl": math.inf}
 
 
-def frame_step_guard(sim, max_steps_per_frame: int | None = None) -> float:
+def frame_step_guard(sim, max_steps_per_frame: int | None = None, remaining: float | None = None) -> float:
     """Raise FrameTooLongError when the next frame would take more than max_steps_per_frame steps
     (default: the scene's [solver].max_steps_per_frame, else 100,000) at the current step limit;
-    returns the steps it needs. Call it before each frame."""
+    returns the steps it needs. Call it before each frame; inside the frame's step loop, pass
+    `remaining` (s left to the frame's end) to catch a step limit that collapses mid-frame."""
     if max_steps_per_frame is None:
         max_steps_per_frame = getattr(sim.scene.solver, "max_steps_per_frame", MAX_STEPS_PER_FRAME)
     limits = dt_limits(sim)
     name = min(limits, key=limits.get)
     dt = limits[name]
-    frame_dt = 1.0 / sim.scene.output.fps
+    frame_dt = 1.0 / sim.scene.output.fps if remaining is None else remaining
     steps = frame_dt / dt if dt > 0.0 else math.inf
     if not steps <= max_steps_per_frame:
         raise FrameTooLongError(f"frame {sim.frame + 1}: " + steps_message(steps, name, dt, frame_dt,

@@ -138,7 +138,7 @@ def main(argv=None) -> int:
     check_p = sub.add_parser("check", help="validate a scene file without simulating")
     check_p.add_argument("scene", help="scene file (.toml)")
     check_p.add_argument("--device", type=device_name, default=None,
-                         help="also check the device exists and holds the scene (default: host memory only)")
+                         help="check the scene fits this device (default: a CPU run, all arrays in host memory)")
     preview_p = sub.add_parser("preview", help="render chosen frames of a written animation to a PNG")
     preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")

@@ -1,7 +1,27 @@
 """warp_mpm_bubbles: air bubbles in water with the Material Point Method in NVIDIA Warp, written as USD.
 
+Build or load a scene, validate it, run it:
+
     from warp_mpm_bubbles import load_scene, run_scene
-    run_scene(load_scene("examples/dam_break.toml"), device="cpu")
+    scene = load_scene("examples/dam_break.toml")     # or Scene(domain=Domain(...), ...)
+    result = run_scene(scene, device="cpu")           # writes scene.output.path, frame by frame
+    result.simulation.particles_numpy()["positions"]  # the last frame's state
+
+Scenes (units: metres, seconds, kilograms, pascals):
+    Scene, Domain, Material, SolverSettings, Output       the schema; Scene.validate() checks it
+    Box, Sphere, Cylinder                                  shapes that seed particles
+    Foam, SubgridBubbles, Entrainment                      effects ([effects.*])
+    LiquidInflow, GasInjector                              emitters ([[emitters]])
+    Collider                                               colliders ([[colliders]])
+    load_scene(path)                                       a TOML file -> a validated Scene
+    SceneError                                             every refusal: names the key and the fix
+
+Running (these import Warp on first use):
+    run_scene(scene, device=None, progress=True, resume=False)   the frame loop, USD and checkpoints
+    Simulation(scene, device=None)                                the state and the step, for your own loop
+    SimulationError                                               the simulation cannot go on
+
+docs/api.md walks through the API with examples.
 """
 
 from .scene import (
@@ -17,21 +37,30 @@ from .scene import (
     load_scene,
 )
 
+# Effect, emitter and collider settings, by name -> the module that defines them (imported on first
+# use). They live in scene/effects.py; when they move, only this table changes.
+_LAZY = {name: "warp_mpm_bubbles.scene.effects" for name in (
+    "Foam", "SubgridBubbles", "Entrainment", "LiquidInflow", "GasInjector", "Collider")}
+# Warp loads only when the simulator is used, so validating a scene stays instant.
+_LAZY.update(Simulation="warp_mpm_bubbles.core.simulation", SimulationError="warp_mpm_bubbles.core.simulation",
+             run_scene="warp_mpm_bubbles.io.runner", RunResult="warp_mpm_bubbles.io.runner")
+
 __all__ = [
     "Box", "Cylinder", "Domain", "Material", "Output", "Scene", "SceneError", "SolverSettings", "Sphere",
-    "load_scene", "Simulation", "run_scene",
+    "load_scene", *_LAZY,
 ]
 __version__ = "0.1.0"
 
 
 def __getattr__(name):
-    # Warp loads only when the simulator is used, so validating a scene stays instant.
-    if name == "Simulation":
-        from .core.simulation import Simulation
+    if name in _LAZY:
+        import importlib
 
-        return Simulation
-    if name == "run_scene":
-        from .io.runner import run_scene
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # once imported, a plain attribute
+        return value
+    raise AttributeError(f"module 'warp_mpm_bubbles' has no attribute {name!r}")
 
-        return run_scene
-    raise AttributeError(name)
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -1,18 +1,50 @@
-"""Command line: `warp-mpm-bubbles run SCENE.toml` and `warp-mpm-bubbles check SCENE.toml`."""
+"""Command line: `warp-mpm-bubbles run SCENE.toml` and `warp-mpm-bubbles check SCENE.toml`.
+
+Exit codes: 0 done; 1 the simulation stopped (a NaN, a frame needing too many steps); 2 bad input
+(a scene, an argument, a device or memory this machine lacks); 3 a bug (an unexpected exception:
+one line saying so and where to report it; WARP_MPM_BUBBLES_DEBUG=1 prints the traceback);
+130 interrupted.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import traceback
 
+from .scene.limits import MAX_FRAMES, check_colliders_leave_fluid, check_memory
 from .scene.quality import PRESETS
 from .scene.model import SceneError, load_scene
+
+DEBUG_ENV = "WARP_MPM_BUBBLES_DEBUG"
+REPORT_TO = "the warp_mpm_bubbles issue tracker (the project's GitHub issues)"
+
+
+def num_frames(text: str) -> int:
+    """--num-frames: a whole number from 1 to MAX_FRAMES (argparse turns the ValueError into exit 2)."""
+    t = text.strip()
+    if not (t.isascii() and t.isdigit()) or len(t) > 30:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of frames; give 1 to {int(MAX_FRAMES):,}")
+    n = int(t)
+    if not 1 <= n <= MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"{text} frames: give 1 to {int(MAX_FRAMES):,} ({MAX_FRAMES.why})")
+    return n
+
+
+def device_name(text: str) -> str:
+    if not text.strip() or len(text) > 64:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a Warp device name such as cpu or cuda:0")
+    return text.strip()
 
 
 def add_run_overrides(parser: argparse.ArgumentParser):
     """The flags every example and `run` share (Warp's and Newton's example convention)."""
-    parser.add_argument("--device", default=None, help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s)')
-    parser.add_argument("--num-frames", type=int, default=None, help="frames to simulate (overrides the scene)")
+    parser.add_argument("--device", type=device_name, default=None,
+                        help='Warp device, e.g. "cpu" or "cuda:0" (default: Warp\'s: the first GPU if any)')
+    parser.add_argument("--num-frames", type=num_frames, default=None,
+                        help=f"frames to simulate after the initial one, 1 to {int(MAX_FRAMES):,} (overrides the "
+                             f"scene; writes N+1 samples)")
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
     parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
                         help="quality preset; replaces the scene's particles_per_cell, cfl, cg_tolerance and refine "
@@ -39,24 +71,56 @@ def run_example(scene_path, description: str, argv=None) -> int:
     parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_run_overrides(parser)
     args = parser.parse_args(argv)
+
+    def body():
+        try:
+            scene = scene_with_overrides(scene_path, args)
+        except SceneError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        return _run(scene, args)
+
+    return guarded(body)
+
+
+def guarded(body) -> int:
+    """Run body(); an exception nobody expected is a bug: say so in one line, where to report it,
+    exit 3 (the traceback with WARP_MPM_BUBBLES_DEBUG=1). Ctrl-C: exit 130."""
     try:
-        scene = scene_with_overrides(scene_path, args)
-    except SceneError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return _run(scene, args)
+        return body()
+    except KeyboardInterrupt:
+        print("interrupted; a run's finished frames are kept: --resume continues it", file=sys.stderr)
+        return 130
+    except Exception as err:  # noqa: BLE001 (the point: no traceback for a user)
+        if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+            traceback.print_exc()
+        detail = " ".join(str(err).split())[:300]
+        print(f"internal error (a bug in warp_mpm_bubbles, not in your input): {type(err).__name__}: {detail}. "
+              f"Please report it on {REPORT_TO} with the command and the scene file; set {DEBUG_ENV}=1 to "
+              f"print the traceback.", file=sys.stderr)
+        return 3
 
 
 def _run(scene, args) -> int:
     import warp as wp  # deferred: `check` and bad scenes never start Warp
 
     wp.config.quiet = True
+    from .io.devices import check_device, check_memory as check_device_memory
     from .io.runner import run_scene
     from .core.simulation import SimulationError
 
     try:
+        device = check_device(args.device)  # before any work: a missing GPU lists the devices there are
+        check_device_memory(scene, device)
+    except (SimulationError, SceneError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    try:
         run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume,
                   overwrite=args.overwrite)
+    except SceneError as err:  # refused at run time (e.g. memory, once the lead's run_scene checks it)
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     except SimulationError as err:
         print(f"error: {err}", file=sys.stderr)
         return getattr(err, "exit_code", 1)  # io/ownership.py: 2 for a refused output, 1 for a failed write
@@ -71,24 +135,22 @@ def main(argv=None) -> int:
     add_run_overrides(run_p)
     check_p = sub.add_parser("check", help="validate a scene file without simulating")
     check_p.add_argument("scene", help="scene file (.toml)")
+    check_p.add_argument("--device", type=device_name, default=None,
+                         help="check the scene fits this device (default: a CPU run, all arrays in host memory)")
     preview_p = sub.add_parser("preview", help="render chosen frames of a written animation to a PNG")
     preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
     preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
     args = parser.parse_args(argv)
+    return guarded(lambda: _main(args))
 
+
+def _main(args) -> int:
     if args.command == "preview":
-        from pathlib import Path
-
-        from .io.preview import render_preview
-
-        frames = [int(f) for f in args.frames.split(",")] if args.frames else None
-        png = args.png or str(Path(args.stage).with_suffix(".png"))
-        print(render_preview(args.stage, png, frames, title=Path(args.stage).stem))
-        return 0
+        return _preview(args)
     try:
         if args.command == "check":
-            return _check(args.scene)
+            return _check(args.scene, args.device)
         scene = scene_with_overrides(args.scene, args)
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -97,11 +159,43 @@ def main(argv=None) -> int:
     return _run(scene, args)
 
 
-def _check(path) -> int:
+def _preview(args) -> int:
+    from pathlib import Path
+
+    from .io.preview import PreviewError, parse_frames, render_preview
+
+    try:
+        frames = parse_frames(args.frames)
+        if not Path(args.stage).name:
+            raise PreviewError(f"{args.stage!r}: give the .usdc (.usd, .usda) file that `run` wrote")
+        png = args.png or str(Path(args.stage).with_suffix(".png"))
+        print(render_preview(args.stage, png, frames, title=Path(args.stage).stem))
+    except PreviewError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _check(path, device=None) -> int:
     from .core.seeding import seed_particles
 
     scene = load_scene(path).validate()
+    if device is not None:  # the GPU's memory too; Warp starts only for this
+        import warp as wp
+
+        wp.config.quiet = True
+        from .core.simulation import SimulationError
+        from .io.devices import check_memory as check_device_memory
+
+        try:
+            estimate = check_device_memory(scene, device)
+        except SimulationError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    else:
+        estimate = check_memory(scene)  # before seeding: a scene too big for the host is refused here
     seeds = seed_particles(scene)
+    check_colliders_leave_fluid(scene, seeds["positions"])
     d = scene.domain
     print(f"{path}: OK")
     print(f"  {d.dim}D domain {' x '.join(f'{s:g}' for s in d.size)} m, cells {d.cells[:d.dim]}, dx {d.dx:g} m"
@@ -113,6 +207,9 @@ def _check(path) -> int:
           + (f"; {len(scene.emitters)} emitters" if scene.emitters else "")
           + (f"; {len(scene.colliders)} colliders" if scene.colliders else ""))
     print(f"  output: {scene.output.path}, {scene.output.frames} frames at {scene.output.fps:g} fps ({scene.output.format})")
+    print(f"  memory: about {(estimate['particles'] + estimate['grid']) / 1e9:.2g} GB on the device "
+          f"(particles {estimate['particles'] / 1e9:.2g}, grid {estimate['grid'] / 1e9:.2g}), "
+          f"{estimate['host'] / 1e9:.2g} GB more on the host while seeding")
     return 0
 
 

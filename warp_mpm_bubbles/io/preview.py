@@ -7,9 +7,65 @@ Needs matplotlib (`pip install warp-mpm-bubbles[plots]`).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from .usd_output import read_frames
+
+USD_SUFFIXES = (".usd", ".usdc", ".usda")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pdf", ".svg")
+
+
+class PreviewError(ValueError):
+    """A preview argument was refused: the message names it and the fix."""
+
+
+def parse_frames(text: str | None) -> list[int] | None:
+    """--frames "0,4,8" -> [0, 4, 8]; None or "" -> None (four frames, spread). PreviewError otherwise."""
+    if text is None or not text.strip():
+        return None
+    frames = []
+    for part in text.split(","):
+        part = part.strip()
+        if not (part.isascii() and part.isdigit()) or len(part) > 9:
+            raise PreviewError(f"--frames {text!r}: {part!r} is not a frame number; give whole numbers >= 0 "
+                               f"separated by commas, e.g. --frames 0,12,24")
+        frames.append(int(part))
+    return frames
+
+
+def load_animation(stage_path) -> dict:
+    """read_frames, with every way a path can be wrong turned into a PreviewError."""
+    path = Path(stage_path)
+    if path.suffix.lower() == ".toml":
+        raise PreviewError(f"{stage_path}: this is a scene file; preview reads the USD animation that "
+                           f"`warp-mpm-bubbles run {stage_path}` writes (its [output].path)")
+    if not path.exists():
+        raise PreviewError(f"{stage_path}: no such file; give the .usdc (.usd, .usda) that `run` wrote")
+    if not path.is_file():
+        raise PreviewError(f"{stage_path}: not a file; give the .usdc (.usd, .usda) that `run` wrote")
+    if path.suffix.lower() not in USD_SUFFIXES:
+        raise PreviewError(f"{stage_path}: expected a .usd, .usdc or .usda file written by `run`")
+    try:
+        data = read_frames(path)
+    except Exception as err:  # noqa: BLE001 (pxr raises its own Tf.ErrorException on a bad file)
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise PreviewError(f"{stage_path}: cannot read it as a USD animation ({first[:200]})") from None
+    if not data["frames"]:
+        raise PreviewError(f"{stage_path}: holds no particle frames (/World/Particles has no time samples); "
+                           f"is it a file written by `warp-mpm-bubbles run`?")
+    return data
+
+
+def check_image_path(png_path):
+    """The image must have a known suffix and a directory that exists."""
+    path = Path(png_path)
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise PreviewError(f"--png {png_path}: expected a file name ending in {', '.join(IMAGE_SUFFIXES)}")
+    if not path.absolute().parent.is_dir():
+        raise PreviewError(f"--png {png_path}: directory {path.absolute().parent} does not exist; create it "
+                           f"or choose another path")
 
 
 def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, dpi=110, color_by="auto"):
@@ -23,18 +79,23 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-    except ImportError as err:
-        raise SystemExit("preview needs matplotlib: pip install 'warp-mpm-bubbles[plots]'") from err
+    except ImportError:
+        raise PreviewError("preview needs matplotlib: from the checkout, pip install -e '.[plots]' "
+                           "(or pip install matplotlib)") from None
 
-    data = read_frames(stage_path)
+    check_image_path(png_path)
+    data = load_animation(stage_path)
     available = sorted(data["frames"])
     if frames is None:
         frames = available[:: max(1, len(available) // 4)][:4]
     missing = [f for f in frames if f not in data["frames"]]
     if missing:
-        raise SystemExit(f"frames {missing} are not in {stage_path} (it has {available[0]}..{available[-1]})")
+        raise PreviewError(f"--frames: {', '.join(map(str, missing))} not in {stage_path}, which has frames "
+                           f"{available[0]}..{available[-1]}")
 
-    all_pos = np.concatenate([data["frames"][f]["positions"] for f in frames])
+    all_pos = np.concatenate([np.asarray(data["frames"][f]["positions"]).reshape(-1, 3) for f in frames])
+    if not len(all_pos):
+        raise PreviewError(f"--frames: frames {', '.join(map(str, frames))} of {stage_path} hold no particles")
     lo, hi = all_pos[:, axes].min(axis=0), all_pos[:, axes].max(axis=0)
     vmax = max(float(np.linalg.norm(data["frames"][f]["velocities"], axis=1).max()) for f in frames) or 1.0
     aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
@@ -66,8 +127,12 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
         fig.colorbar(sc, ax=axs[0].tolist(), label="speed (m/s)", shrink=0.8)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.savefig(png_path, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
+    try:
+        fig.savefig(png_path, dpi=dpi, bbox_inches="tight")
+    except OSError as err:
+        raise PreviewError(f"--png {png_path}: cannot write it ({err.strerror or err})") from None
+    finally:
+        plt.close(fig)
     return png_path
 
 

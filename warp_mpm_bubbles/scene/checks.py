@@ -70,7 +70,8 @@ class _Checker:
         return v
 
     def number(self, key, v, whole=False, **limits):
-        """A finite float (an int when `whole`) within the given limits gt, ge, lt, le."""
+        """A finite float (an int when `whole`) within the given limits gt, ge, lt, le; a limit
+        that is a scene.limits.Limit adds its reason to the refusal."""
         bounds = [f"{op} {_g(limits[name])}" for name, op, _ in _LIMITS if name in limits]
         allowed = ("a whole number" if whole else "a finite number") + "".join(
             f" {'and ' if i else ''}{b}" for i, b in enumerate(bounds))
@@ -79,9 +80,18 @@ class _Checker:
         if not math.isfinite(v) or (whole and not float(v).is_integer()):
             self.fail(key, v, f"must be {allowed}")
         x = int(v) if whole else float(v)
-        if not all(test(x, limits[name]) for name, _, test in _LIMITS if name in limits):
-            self.fail(key, v, f"must be {allowed}")
+        failed = [name for name, _, test in _LIMITS if name in limits and not test(x, limits[name])]
+        if failed:
+            reasons = [limits[name] for name in failed if getattr(limits[name], "why", "")]
+            self.fail(key, v, f"must be {allowed}" + (f" ({_g(reasons[0])} {reasons[0].why})" if reasons else ""))
         return x
+
+    def magnitude(self, key, vector, limit, what="its magnitude"):
+        """Refuse a vector longer than `limit` (a scene.limits.Limit: its reason is given)."""
+        norm = math.hypot(*vector)
+        if norm > limit:
+            self.fail(key, vector, f"{what} {norm:.6g} exceeds {_g(limit)} {getattr(limit, 'why', '')}".rstrip())
+        return vector
 
     def vector(self, key, v, n, why="", **limits):
         if isinstance(v, (str, bytes)) or not isinstance(v, (list, tuple, np.ndarray)) or len(v) != n:

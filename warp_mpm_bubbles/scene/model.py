@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import tempfile
 from dataclasses import dataclass, field, fields, MISSING
 from pathlib import Path
 from typing import ClassVar
@@ -20,10 +21,16 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from .checks import AXES, SceneError, _Checker, _did_you_mean, _fmt, _g, derive, dim_why, underive
+from .checks import AXES, SceneError, _Checker, _g, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from ..core.grid import INTERFACES, PRECONDITIONERS
+from .limits import (
+    MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED,
+    MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY, MAX_VOLUME_CORRECTION, MIN_AMBIENT,
+    MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
+)
+from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
@@ -42,10 +49,24 @@ MAX_CELLS = 2**30  # 1024^3: beyond it the grid outgrows a GPU's memory and int3
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
 
 
+# A scene refuses magnitudes beyond the bounds in scene/limits.py, each refusal with its reason.
 
 
 @dataclass
 class Domain:
+    """The box the simulation fills, from the origin to `size`.
+
+    Attributes:
+        size: extent in metres: 2 numbers make a 2D run (a slab one cell thick), 3 a 3D run;
+            each a whole number (>= 4) of cells; at most 2^30 cells in all.
+        cell_size: grid spacing in metres (>= 1 micrometre; [solver].refine subdivides it).
+        gravity: m/s^2, one number per axis (default (0, -9.81[, 0])); magnitude at most 1,000.
+        walls: "free_slip" | "no_slip" | "open" for all walls, or per wall
+            {"x_min": ..., "y_max": "open", ...}; open walls let fluid and gas leave.
+        ambient_pressure: Pa (default 101325): the air outside the liquid, and gas at its rest
+            density; 1 Pa to 1e9 Pa.
+    """
+
     size: tuple[float, ...]
     cell_size: float
     gravity: tuple[float, ...] | None = None
@@ -80,7 +101,7 @@ class Domain:
                 or len(self.size) not in (2, 3):
             c.fail(f"{t}.size", self.size, "expected 2 numbers (2D run) or 3 numbers (3D run), each > 0")
         self.size = c.vector(f"{t}.size", self.size, len(self.size), gt=0)
-        h = self.cell_size = c.number(f"{t}.cell_size", self.cell_size, gt=0)
+        h = self.cell_size = c.number(f"{t}.cell_size", self.cell_size, gt=0, ge=MIN_CELL)
         dim = self.dim
         for a, s in enumerate(self.size):
             n = s / h
@@ -96,8 +117,10 @@ class Domain:
         if self.gravity is None:
             self.gravity = (0.0, -9.81, 0.0)[:dim]
         self.gravity = c.vector(f"{t}.gravity", self.gravity, dim, dim_why(dim))
+        c.magnitude(f"{t}.gravity", self.gravity, MAX_GRAVITY)
         self.walls = self._resolve_walls(c, dim)
-        self.ambient_pressure = c.number(f"{t}.ambient_pressure", self.ambient_pressure, gt=0)
+        self.ambient_pressure = c.number(f"{t}.ambient_pressure", self.ambient_pressure, gt=0, ge=MIN_AMBIENT,
+                                         le=MAX_PRESSURE)
 
     def _check_total(self, c, refine):
         total = math.prod(round(s / self.cell_size) * refine for s in self.size)
@@ -124,6 +147,22 @@ class Domain:
 
 @dataclass
 class Material:
+    """A fluid: its kind, density, colour and, for a liquid, surface tension and viscosity.
+
+    Attributes:
+        name: the material's key in Scene.materials (shapes and emitters refer to it).
+        kind: "liquid" (default) | "gas" | "foam" (made by the foam effect, not placed by shapes).
+        density: kg/m^3 (gas: at the ambient pressure), 1e-3 to 1e5; None: water 1000,
+            air 1.2, foam 50.
+        color: (red, green, blue), each 0..1, for the USD prototype; None: per-kind default.
+        eos: gas only: "isothermal" (default, p proportional to density) | "adiabatic"
+            (p ~ density^gamma) | "incompressible" (a density ratio only).
+        gamma: adiabatic index (dimensionless, > 1, <= 3; air 1.4), used by eos = "adiabatic".
+        surface_tension: N/m, liquid only (water-air 0.072; at most 3); 0 skips the stage.
+        viscosity: dynamic viscosity, Pa s (water 1.0e-3, air 1.8e-5; at most 1,000);
+            0 everywhere skips the stage.
+    """
+
     name: str
     kind: str = "liquid"
     density: float | None = None  # kg/m^3 (gas: at the ambient pressure); None -> per-kind default
@@ -143,17 +182,18 @@ class Material:
             c.fail(f"{t}.name", self.name, f"must equal its key '{key}' in Scene.materials")
         self.kind = c.choice(f"{t}.kind", self.kind, MATERIAL_KINDS)
         defaults = KIND_DEFAULTS[self.kind]
-        self.density = c.number(f"{t}.density", defaults["density"] if self.density is None else self.density, gt=0)
+        self.density = c.number(f"{t}.density", defaults["density"] if self.density is None else self.density,
+                                gt=0, ge=MIN_DENSITY, le=MAX_DENSITY)
         self.color = c.vector(f"{t}.color", defaults["color"] if self.color is None else self.color, 3,
                               " (red, green, blue)", ge=0, le=1)
         if self.kind == "gas":
             self.eos = c.choice(f"{t}.eos", defaults["eos"] if self.eos is None else self.eos, GAS_LAWS)
-            self.gamma = c.number(f"{t}.gamma", self.gamma, gt=1)
+            self.gamma = c.number(f"{t}.gamma", self.gamma, gt=1, le=MAX_GAMMA)
         elif self.eos is not None:
             c.fail(f"{t}.eos", self.eos, f"only gas materials have an equation of state; remove it or set "
                                          f"{t}.kind = \"gas\"")
-        self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, ge=0)
-        self.viscosity = c.number(f"{t}.viscosity", self.viscosity, ge=0)
+        self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, ge=0, le=MAX_SURFACE_TENSION)
+        self.viscosity = c.number(f"{t}.viscosity", self.viscosity, ge=0, le=MAX_VISCOSITY)
         if self.kind == "gas" and self.surface_tension > 0:
             c.fail(f"{t}.surface_tension", self.surface_tension,
                    "surface tension belongs to the liquid (it acts on its surface with gas and air); "
@@ -165,137 +205,29 @@ class Material:
                                                                f"surface); remove the key or set it on the liquid")
 
 
-class _Shape:
-    """Behaviour shared by the shape dataclasses (which keep their own field order)."""
-
-    type_name: ClassVar[str]
-
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        dim = len(self.bounds()[0])
-        return self._contains(np.asarray(points)[:, :dim])  # 2D shapes ignore a z column
-
-    def describe(self) -> str:
-        parts = [f"{f.name}={_fmt(getattr(self, f.name))}" for f in fields(self)
-                 if f.name not in ("material", "velocity", "pressure")]
-        return f"{self.type_name} " + " ".join(parts)
-
-    def _validate(self, c: _Checker, key, scene: Scene):
-        dim, mats = scene.dim, scene.materials
-        if not isinstance(self.material, str) or self.material not in mats:
-            c.fail(f"{key}.material", self.material,
-                   f"no such material; defined materials: {', '.join(mats)}{_did_you_mean(self.material, mats)}")
-        if mats[self.material].kind == "foam":
-            c.fail(f"{key}.material", self.material, "foam is made at the surface by [effects.foam], not placed "
-                                                     "by a shape; use a liquid or gas material")
-        self._validate_geometry(c, key, scene.domain)
-        self.velocity = (0.0,) * dim if self.velocity is None else self.velocity
-        self.velocity = c.vector(f"{key}.velocity", self.velocity, dim, dim_why(dim))
-        if self.pressure is not None:
-            m = mats[self.material]
-            if not m.is_gas or m.eos == "incompressible":
-                c.fail(f"{key}.pressure", self.pressure, f"an initial pressure needs a compressible gas; material "
-                                                         f"'{self.material}' is {m.kind}"
-                       + (f" with eos = \"{m.eos}\"" if m.is_gas else "") + "; remove the key")
-            self.pressure = c.number(f"{key}.pressure", self.pressure, gt=-scene.domain.ambient_pressure)
-        lo, hi = self.bounds()
-        size = np.array(scene.domain.size)
-        if (lo < -1e-9 * size).any() or (hi > size * (1 + 1e-9)).any():
-            c.fail(key, self, f"its bounds {_g(lo)} .. {_g(hi)} are not inside the domain {_g(0 * size)} .. "
-                              f"{_g(size)}; move or shrink the shape, or enlarge [domain].size",
-                   shown=self.describe())
-
-
-@dataclass
-class Box(_Shape):
-    material: str
-    min: tuple
-    max: tuple
-    velocity: tuple | None = None
-    pressure: float | None = None  # gas only: initial gauge pressure, Pa
-    type_name: ClassVar[str] = "box"
-
-    def bounds(self):
-        return np.array(self.min, float), np.array(self.max, float)
-
-    def _contains(self, p):
-        return np.all((p >= np.array(self.min)) & (p <= np.array(self.max)), axis=1)
-
-    def _validate_geometry(self, c, key, domain):
-        why = dim_why(domain.dim)
-        self.min = c.vector(f"{key}.min", self.min, domain.dim, why)
-        self.max = c.vector(f"{key}.max", self.max, domain.dim, why)
-        for a, (lo, hi) in enumerate(zip(self.min, self.max)):
-            if lo >= hi:
-                c.fail(f"{key}.min", self.min, f"must be < {key}.max = {_fmt(self.max)} on every axis "
-                                               f"(not on {AXES[a]}: {_g(lo)} >= {_g(hi)})")
-
-
-@dataclass
-class Sphere(_Shape):
-    material: str
-    center: tuple
-    radius: float
-    velocity: tuple | None = None
-    pressure: float | None = None  # gas only: initial gauge pressure, Pa
-    type_name: ClassVar[str] = "sphere"
-
-    def bounds(self):
-        c = np.array(self.center, float)
-        return c - self.radius, c + self.radius
-
-    def _contains(self, p):
-        return np.sum((p - np.array(self.center)) ** 2, axis=1) <= self.radius ** 2
-
-    def _validate_geometry(self, c, key, domain):
-        self.center = c.vector(f"{key}.center", self.center, domain.dim, dim_why(domain.dim))
-        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
-
-
-@dataclass
-class Cylinder(_Shape):
-    material: str
-    center: tuple
-    radius: float
-    axis: str = "z"
-    length: float | None = None
-    velocity: tuple | None = None
-    pressure: float | None = None  # gas only: initial gauge pressure, Pa
-    type_name: ClassVar[str] = "cylinder"
-
-    def bounds(self):
-        c, a = np.array(self.center, float), AXES.index(self.axis)
-        half = np.full(len(c), float(self.radius))
-        if a < len(c):  # a 2D cylinder along z is a disk: no extent along its axis
-            half[a] = 0.5 * self.length
-        return c - half, c + half
-
-    def _contains(self, p):
-        c, a = np.array(self.center), AXES.index(self.axis)
-        radial = [i for i in range(len(c)) if i != a]
-        inside = np.sum((p[:, radial] - c[radial]) ** 2, axis=1) <= self.radius ** 2
-        if a < len(c):
-            inside &= np.abs(p[:, a] - c[a]) <= 0.5 * self.length
-        return inside
-
-    def _validate_geometry(self, c, key, domain):
-        self.center = c.vector(f"{key}.center", self.center, domain.dim, dim_why(domain.dim))
-        self.radius = c.number(f"{key}.radius", self.radius, gt=0)
-        self.axis = c.choice(f"{key}.axis", self.axis, AXES)
-        a = AXES.index(self.axis)
-        if self.length is None:
-            if a < domain.dim:  # span the whole domain: centre it along the axis
-                self.length = domain.size[a]
-                self.center = tuple(domain.size[a] / 2 if i == a else x for i, x in enumerate(self.center))
-            else:  # 2D disk: the length is the one-cell slab thickness (unused)
-                self.length = domain.dx
-        self.length = c.number(f"{key}.length", self.length, gt=0)
-
-
-SHAPE_TYPES = {cls.type_name: cls for cls in (Box, Sphere, Cylinder)}
-
-
 @dataclass
 class SolverSettings:
+    """How the equations are solved: resolution, time steps and the pressure solve.
+
+    Attributes:
+        quality: "preview" | "production" (default) | "reference": fills particles_per_cell, cfl,
+            cg_tolerance and refine where they are None.
+        particles_per_cell: 1..64 (production: 4 in 2D, 8 in 3D).
+        cfl: time-step factor (dimensionless, 0 < cfl <= 2): dt = cfl dx / speed (production 0.5).
+        max_dt: an upper bound on the step, s (None: none).
+        cg_tolerance: relative residual of the pressure solve, 0..1 (production 1e-5).
+        refine: grid cells per [domain].cell_size and axis, 1..8 (reference: 2).
+        cg_max_iterations: cap on pressure-solve iterations per step (1..1e6, default 2000).
+        preconditioner: "multigrid" (default) | "jacobi" | "none".
+        interface: gas-liquid faces: "sharp" (default, ghost fluid) | "baseline".
+        liquid_velocity: sharp interface only: "own" (default) | "shared".
+        gas_films: "retract" (default) | "passive": sub-cell gas films beside a bubble.
+        volume_correction: share (0..1, default 0.3) of a cell's over-fill undone per step.
+        seed: seeds the jittered particle placement (a whole number >= 0).
+        max_steps_per_frame: a frame that would need more steps is refused before it starts,
+            naming the limiting term (default 100,000).
+    """
+
     quality: str = DEFAULT_QUALITY  # preview | production | reference: fills the unset settings below
     particles_per_cell: int | None = None  # None: from the quality preset (production: 4 in 2D, 8 in 3D)
     cfl: float | None = None  # None: from the preset (production: 0.5)
@@ -309,6 +241,7 @@ class SolverSettings:
     gas_films: str = "retract"  # sharp interface with tension: sub-cell gas beside a bubble retracts into it
     volume_correction: float = 0.3  # share of a cell's over-fill (beyond seeding noise) undone per step
     seed: int = 0
+    max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
 
     def _validate(self, c: _Checker, dim):
         t = "[solver]"
@@ -323,17 +256,34 @@ class SolverSettings:
         if self.max_dt is not None:
             self.max_dt = c.number(f"{t}.max_dt", self.max_dt, gt=0)
         self.cg_tolerance = c.number(f"{t}.cg_tolerance", self.cg_tolerance, gt=0, lt=1)
-        self.cg_max_iterations = c.number(f"{t}.cg_max_iterations", self.cg_max_iterations, ge=1, whole=True)
+        self.cg_max_iterations = c.number(f"{t}.cg_max_iterations", self.cg_max_iterations, ge=1,
+                                          le=MAX_CG_ITERATIONS, whole=True)
         self.preconditioner = c.choice(f"{t}.preconditioner", self.preconditioner, PRECONDITIONERS)
         self.interface = c.choice(f"{t}.interface", self.interface, INTERFACES)
         self.liquid_velocity = c.choice(f"{t}.liquid_velocity", self.liquid_velocity, LIQUID_VELOCITIES)
         self.gas_films = c.choice(f"{t}.gas_films", self.gas_films, GAS_FILMS)
-        self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0)
-        self.seed = c.number(f"{t}.seed", self.seed, ge=0, whole=True)
+        self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0,
+                                          le=MAX_VOLUME_CORRECTION)
+        self.seed = c.number(f"{t}.seed", self.seed, ge=0, le=2**63 - 1, whole=True)
+        self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
+                                            le=MAX_STEPS_LIMIT, whole=True)
 
 
 @dataclass
 class Output:
+    """Where and how the animation is written.
+
+    Attributes:
+        path: the USD file (.usd, .usdc or .usda); its frames go to <stem>_frames/ beside it.
+        fps: frames per second of simulated time (0.01 to 1e5; default 30); also the stage's
+            timeCodesPerSecond.
+        frames: frames simulated after the initial one (1..1,000,000): frames + 1 samples,
+            time codes 0..frames.
+        format: "instancer" (UsdGeomPointInstancer, default) | "points" (UsdGeomPoints) | "both".
+        particle_radius: m, for the spheres drawn; None: half the particle spacing.
+        up_axis: "Y" (default) | "Z", the stage's upAxis.
+    """
+
     path: str = "out.usdc"
     fps: float = 30.0
     frames: int = 60
@@ -348,8 +298,8 @@ class Output:
         if not isinstance(self.path, str) or Path(self.path).suffix.lower() not in USD_SUFFIXES:
             c.fail(f"{t}.path", self.path, "expected a file name ending in .usd, .usdc or .usda")
         self._check_writable(c, f"{t}.path")
-        self.fps = c.number(f"{t}.fps", self.fps, gt=0)
-        self.frames = c.number(f"{t}.frames", self.frames, ge=1, whole=True)
+        self.fps = c.number(f"{t}.fps", self.fps, gt=0, ge=MIN_FPS, le=MAX_FPS)
+        self.frames = c.number(f"{t}.frames", self.frames, ge=1, le=MAX_FRAMES, whole=True)
         self.format = c.choice(f"{t}.format", self.format, OUTPUT_FORMATS)
         if self.particle_radius is None:
             derive(self, "particle_radius", self.default_radius(scene))
@@ -375,10 +325,31 @@ class Output:
             c.fail(key, self.path, f"cannot create it: {ancestor} is not a directory")
         if not os.access(ancestor, os.W_OK | os.X_OK):
             c.fail(key, self.path, f"cannot write it: directory {ancestor} is not writable")
+        # os.access trusts permission bits, which root passes everywhere: /proc, read-only mounts.
+        # So try: create (and remove) a scratch file of our own in the directory the writer will use.
+        try:
+            fd, scratch = tempfile.mkstemp(prefix=".wmb-probe-", dir=ancestor)
+            os.close(fd)
+            os.unlink(scratch)
+        except OSError as e:
+            c.fail(key, self.path, f"cannot write it: creating a file in {ancestor} failed ({e.strerror}); "
+                                   f"choose another directory (--stage-path or [output].path)")
 
 
 @dataclass
 class Scene:
+    """A whole scene: what `load_scene` reads from TOML and `run_scene` simulates.
+
+    Attributes:
+        domain: Domain; materials: {name: Material}; shapes: [Box | Sphere | Cylinder], later
+            shapes overwriting earlier ones; solver: SolverSettings; output: Output.
+        effects: {"foam": Foam, "subgrid_bubbles": SubgridBubbles, "entrainment": Entrainment}.
+        emitters: [LiquidInflow | GasInjector]; colliders: [Collider].
+        name: shown in the summary (TOML: the file's stem); source: the file, for messages.
+
+    `validate()` checks everything and fills the defaults (raises SceneError naming the key).
+    """
+
     domain: Domain
     materials: dict[str, Material]
     shapes: list[Box | Sphere | Cylinder]
@@ -432,7 +403,13 @@ class Scene:
             s._validate(c, f"[shapes.{i}]", self)
         c.instance("[output]", self.output, Output, "an Output")
         self.output._validate(c, self)
-        # Last: the only check that generates samples.
+        for i, item in enumerate(self.emitters):
+            self._check_speed(c, f"[emitters.{i}]", item)
+        for i, item in enumerate(self.colliders):
+            self._check_speed(c, f"[colliders.{i}]", item)
+        check_steps(c, self)  # a first frame needing millions of steps would run silently for hours
+        # Last: the only check that generates samples (after making sure one slab of them fits).
+        check_sampling(self)
         ppc, seed = self.solver.particles_per_cell, self.solver.seed
         for i, s in enumerate(self.shapes):
             if not shape_seeds_particles(s, self.domain, ppc, seed):
@@ -458,6 +435,15 @@ class Scene:
             for i, item in enumerate(items):
                 c.instance(f"[{name}.{i}]", item, types, " or ".join(t.__name__ for t in types))
                 item._validate(c, f"[{name}.{i}]", self)
+
+    def _check_speed(self, c: _Checker, key, item):
+        """Emitters and colliders obey the shapes' speed bound over the whole run (a collider
+        accelerating until its stop time included)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge acceleration: inf, refused below
+            speed = item.speed_between(0.0, self.output.frames / self.output.fps)
+        if not speed <= MAX_SPEED:
+            c.fail(key, speed, f"moves at up to {speed:.3g} m/s during the run, more than {_g(MAX_SPEED)} "
+                               f"{MAX_SPEED.why}; lower its speed, velocity or acceleration", shown=f"{speed:.3g} m/s")
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "<dict>") -> Scene:

@@ -20,6 +20,8 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     parser.add_argument("--resume", action="store_true",
                         help="continue a killed run from its last checkpoint, keeping its frames")
+    parser.add_argument("--surface", action="store_true",
+                        help="also write the liquid's surface mesh per frame (sets [output].surface = true)")
 
 
 def scene_with_overrides(path, args) -> "object":
@@ -27,8 +29,9 @@ def scene_with_overrides(path, args) -> "object":
     scene = load_scene(path)
     if args.quality is not None:
         scene = scene.with_quality(args.quality)
-    if args.num_frames is not None or args.stage_path is not None:
-        scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
+    surface = True if getattr(args, "surface", False) else None
+    if args.num_frames is not None or args.stage_path is not None or surface:
+        scene = scene.replace_output(path=args.stage_path, frames=args.num_frames, surface=surface)
     return scene.validate()
 
 

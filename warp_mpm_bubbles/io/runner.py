@@ -15,6 +15,7 @@ from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
 from .usd_colliders import write_colliders
+from .surface import builder_for, liquid_surface
 from .usd_output import StageWriter
 
 
@@ -82,12 +83,13 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
             write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
     with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
                      format=out.format, up_axis=out.up_axis, resume_after=resume_after,
-                     decorate=decorate) as writer:
+                     decorate=decorate, surface=out.surface) as writer:
+        builder = builder_for(sim, out.surface_resolution, out.surface_smoothing) if out.surface else None
         if resume_after is None:
-            _write(sim, writer, checkpoint)
+            _write(sim, writer, checkpoint, builder)
         while sim.frame < out.frames:
             sim.advance_frame()
-            _write(sim, writer, checkpoint)
+            _write(sim, writer, checkpoint, builder)
             if bar:
                 bar.update(sim.frame, sim.time, sim.stats.steps)
     result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
@@ -96,15 +98,25 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
     return result
 
 
-def _write(sim: Simulation, writer: StageWriter, checkpoint):
+def _write(sim: Simulation, writer: StageWriter, checkpoint, builder=None):
     """The frame first (durable when write_frame returns), then the checkpoint that resumes after it."""
+    surface = _surface(sim, builder)
     with sim.timer("output"):
         p = sim.particles_numpy()
         radii = None  # without foam or sub-grid bubbles every particle has the output radius
         if sim.foam or sim.subgrid:  # those are real bubbles: the radius of their own volume
             radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
-        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
+        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii,
+                           surface=surface)
         save_checkpoint(sim, checkpoint)
+
+
+def _surface(sim: Simulation, builder):
+    """The liquid's mesh this frame when [output].surface is on (its own line in the summary)."""
+    if builder is None:
+        return None
+    with sim.timer("surface"):
+        return liquid_surface(builder, sim.particles_numpy())
 
 
 def summary(result: RunResult) -> str:

@@ -341,6 +341,9 @@ class Output:
     format: str = "instancer"
     particle_radius: float | None = None
     up_axis: str = "Y"
+    surface: bool = False  # the liquid's surface mesh per frame (io/surface.py)
+    surface_resolution: int = 2  # surface grid cells per simulation cell, per axis
+    surface_smoothing: float = 1.0  # the smoothing kernel's radius, in simulation cells
 
     def _validate(self, c: _Checker, scene: Scene):
         t = "[output]"
@@ -356,6 +359,18 @@ class Output:
             derive(self, "particle_radius", self.default_radius(scene))
         self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
         self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
+        self._validate_surface(c, t)
+
+    def _validate_surface(self, c: _Checker, t: str):
+        if not isinstance(self.surface, (bool, np.bool_)):
+            c.fail(f"{t}.surface", self.surface, "expected true or false")
+        self.surface = bool(self.surface)
+        # Upper bounds keep the grid affordable: 8^3 = 512 surface nodes per simulation cell.
+        self.surface_resolution = c.number(f"{t}.surface_resolution", self.surface_resolution, ge=1, le=8,
+                                           whole=True)
+        # Below half a cell the kernel holds too few particles (a bumpy surface); above 4 it rounds
+        # everything smaller than the tank away.
+        self.surface_smoothing = c.number(f"{t}.surface_smoothing", self.surface_smoothing, ge=0.5, le=4)
 
     @staticmethod
     def default_radius(scene) -> float:
@@ -553,9 +568,11 @@ class Scene:
             setattr(new.solver, name, None)
         return new.validate()
 
-    def replace_output(self, path=None, frames=None) -> Scene:
-        """A validated copy with another output path and/or frame count."""
+    def replace_output(self, path=None, frames=None, surface=None) -> Scene:
+        """A validated copy with another output path, frame count and/or surface switch."""
         new = copy.deepcopy(self)
+        if surface is not None:
+            new.output.surface = surface
         if path is not None:
             new.output.path = os.fspath(path)
         if frames is not None:

@@ -343,7 +343,7 @@ class Output:
     up_axis: str = "Y"
     surface: bool = False  # the liquid's surface mesh per frame (io/surface.py)
     surface_resolution: int = 2  # surface grid cells per simulation cell, per axis
-    surface_smoothing: float = 1.0  # the smoothing kernel's radius, in simulation cells
+    surface_smoothing: float = 1.25  # the smoothing kernel's radius, in simulation cells (1.0: voids inside)
 
     def _validate(self, c: _Checker, scene: Scene):
         t = "[output]"

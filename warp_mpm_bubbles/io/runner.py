@@ -15,6 +15,7 @@ from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
 from .usd_colliders import write_colliders
+from .usd_materials import dress_stage
 from .surface import builder_for, liquid_surface
 from .usd_output import StageWriter
 
@@ -77,9 +78,11 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
             log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
     materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
     bar = ProgressBar(out.frames, stream=log) if progress else None
-    decorate = None
-    if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
-        def decorate(stage):
+    looks = [(m.name, m.kind, tuple(m.color)) for m in scene.materials.values()]
+
+    def decorate(stage):
+        dress_stage(stage, looks)  # UsdPreviewSurface materials on the prototypes and the surface
+        if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
             write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
     with StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
                      format=out.format, up_axis=out.up_axis, resume_after=resume_after,

@@ -1,4 +1,4 @@
-"""Command line: `warp-mpm-bubbles run SCENE.toml` and `warp-mpm-bubbles check SCENE.toml`."""
+"""Command line: `warp-mpm-bubbles run SCENE.toml`, `check SCENE.toml`, `preview OUT.usdc`, `blender OUT.usdc`."""
 
 from __future__ import annotations
 
@@ -75,8 +75,11 @@ def main(argv=None) -> int:
     preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
     preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
+    _add_blender_parser(sub)
     args = parser.parse_args(argv)
 
+    if args.command == "blender":
+        return _blender(args)
     if args.command == "preview":
         from pathlib import Path
 
@@ -95,6 +98,26 @@ def main(argv=None) -> int:
         return 2
 
     return _run(scene, args)
+
+
+def _add_blender_parser(sub):
+    blender_p = sub.add_parser("blender", help="open a written animation in Blender (needs bpy) and save a .blend "
+                                              "with fps, frame range, materials, a camera and a light")
+    blender_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
+    blender_p.add_argument("--blend", default=None, help="output .blend (default: next to the stage)")
+
+
+def _blender(args) -> int:
+    from .io.blender import BlenderUnavailable, open_in_blender
+
+    try:
+        done = open_in_blender(args.stage, args.blend)
+    except (BlenderUnavailable, FileNotFoundError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"{done['blend']}: {done['fps']:g} fps, frames {done['frames'][0]}-{done['frames'][1]}, "
+          f"{len(done['objects'])} objects")
+    return 0
 
 
 def _check(path) -> int:

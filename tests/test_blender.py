@@ -5,12 +5,16 @@ bpy is not installed (pip install -e ".[blender]": Python 3.11, numpy < 2, its o
 import os
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
 
 from warp_mpm_bubbles.cli import main
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = sorted(p.stem for p in (ROOT / "examples").glob("*.py"))

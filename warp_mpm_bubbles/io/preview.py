@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .preview_surface import draw_surface, liquid_prototype
+from .preview_surface import draw_oblique, draw_surface, liquid_prototype, oblique_view
 from .usd_output import read_frames
 
 
@@ -47,9 +47,16 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
     palette = ("#3373e6", "#f2a81d", "#e64b3c", "#3cbf6e")
     sc = None
     liquid = liquid_prototype(stage_path)  # not None: the file has a surface mesh, drawn instead of the water
+    flat = bool(np.ptp(all_pos[:, 2]) == 0)  # a 2D run's slab
     for ax, f in zip(axs[0], frames):
         p = data["frames"][f]
-        if liquid is not None and draw_surface(ax, stage_path, f, axes, flat=bool(np.ptp(all_pos[:, 2]) == 0)):
+        if liquid is not None and not flat:  # 3D: the shaded mesh seen from above at an angle
+            box = np.stack([all_pos.min(axis=0), all_pos.max(axis=0)])
+            corners = np.array([[box[(i >> a) & 1, a] for a in range(3)] for i in range(8)])
+            draw_oblique(ax, stage_path, f, p["positions"][p["proto_indices"] != liquid], oblique_view(axes), corners)
+            ax.set_title(f"frame {f}  t = {f / data['fps']:.3f} s", fontsize=9)
+            continue
+        if liquid is not None and draw_surface(ax, stage_path, f, axes, flat=flat):
             p = {k: v[p["proto_indices"] != liquid] if k != "extent" else v for k, v in p.items()}
         pos = p["positions"]
         if not len(pos):  # all of it drawn as the surface

@@ -72,3 +72,46 @@ def _cut(tri, z):
         if len(pts) == 2:
             segments.append(pts)
     return np.asarray(segments).reshape(-1, 2, 3)
+
+
+def oblique_view(axes, azimuth=-30.0, elevation=22.0) -> np.ndarray:
+    """Rows: screen right, screen up and towards the viewer, for a camera turned `azimuth` degrees
+    about the up axis axes[1] from the side view along the third axis, and raised `elevation` degrees."""
+    right, up = np.eye(3)[axes[0]], np.eye(3)[axes[1]]
+    back = np.cross(right, up)
+    a, e = np.radians(azimuth), np.radians(elevation)
+    r = np.cos(a) * right + np.sin(a) * back
+    b = np.cross(r, up)
+    towards = np.cos(e) * b + np.sin(e) * up
+    return np.stack([r, np.cross(towards, r), towards])
+
+
+def draw_oblique(ax, stage_path, frame, others, view, corners, color=(0.2, 0.45, 0.9)) -> None:
+    """A 3D run's surface mesh shaded from the oblique `view`, the other particles (bubbles, foam) on
+    top, framed on the projected `corners` (8, 3) of the box the frames fill."""
+    from matplotlib.collections import PolyCollection
+
+    mesh = read_surface(stage_path, frame)
+    if mesh is not None and len(mesh.indices):
+        tri = mesh.points[mesh.indices] @ view.T  # (F, 3, 3): screen x, screen y, depth (towards)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        facing = n[:, 2] > 0
+        light = np.array([-0.4, 0.7, 0.6]) / np.linalg.norm([-0.4, 0.7, 0.6])  # from upper left, in view space
+        shade = 0.25 + 0.75 * np.clip(n[facing] @ light, 0.0, 1.0)
+        order = np.argsort(tri[facing][:, :, 2].mean(axis=1))  # far first
+        colors = np.clip(np.outer(shade[order], color) + 0.2 * shade[order, None] ** 12, 0, 1)
+        ax.add_collection(PolyCollection(tri[facing][order][:, :, :2], facecolors=colors, edgecolors=colors,
+                                         linewidths=0.2))
+    if len(others):
+        q = others @ view.T
+        ax.scatter(q[:, 0], q[:, 1], s=2.0, color="#f2a81d", linewidths=0)
+    c = corners @ view.T
+    for i in range(8):  # the tank's edges, thin grey
+        for j in range(i + 1, 8):
+            if bin(i ^ j).count("1") == 1:
+                ax.plot(c[[i, j], 0], c[[i, j], 1], color="0.7", linewidth=0.5, zorder=0)
+    ax.set_xlim(c[:, 0].min(), c[:, 0].max())
+    ax.set_ylim(c[:, 1].min(), c[:, 1].max())
+    ax.set_aspect("equal")
+    ax.set_axis_off()

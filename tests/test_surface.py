@@ -188,3 +188,25 @@ def test_examples_with_surface_flag_write_closed_meshes(tmp_path, example):
     # along the glass's wall, which the field does not carve).
     assert read_surface(out, 0).volume() / water0 == pytest.approx(0.997 if example == "dam_break" else 0.981,
                                                                    abs=0.01)
+
+
+def test_preview_draws_the_surface_2d_cut_and_3d_shaded(tmp_path):
+    pytest.importorskip("matplotlib")
+    from warp_mpm_bubbles.io.preview import render_preview
+    from warp_mpm_bubbles.io.preview_surface import _cut
+    from warp_mpm_bubbles.io.usd_materials import dress_stage
+
+    for dim in (2, 3):
+        pos, vol = jittered((0, 0), (12, 6), dim=2) if dim == 2 else jittered((0, 0, 0), (6, 4, 4))
+        mesh = SurfaceBuilder(dim, DX, (16, 16, 16)[:dim] + ((1,) if dim == 2 else ()), 2, device="cpu").build(pos, vol)
+        out = tmp_path / f"p{dim}.usdc"
+        with StageWriter(out, fps=30, materials=[("water", (0.2, 0.45, 0.9))], particle_radius=DX / 4, surface=True,
+                         decorate=lambda st: dress_stage(st, [("water", "liquid", (0.2, 0.45, 0.9))])) as w:
+            w.write_frame(0, pos, np.zeros_like(pos), np.arange(len(pos)), np.zeros(len(pos)), surface=mesh)
+        png = tmp_path / f"p{dim}.png"
+        render_preview(out, png, [0])
+        assert png.stat().st_size > 5000
+        if dim == 2:  # the cut through the slab's middle is a closed curve: each end shared by two segments
+            seg = _cut(mesh.points[mesh.indices], DX / 2)
+            _, counts = np.unique(np.round(seg.reshape(-1, 3), 7), axis=0, return_counts=True)
+            assert len(seg) > 50 and (counts == 2).all()

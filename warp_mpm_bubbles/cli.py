@@ -135,7 +135,10 @@ def _check(path) -> int:
     print(f"  effects: {', '.join(scene.effect_names) or 'none (liquid only)'}"
           + (f"; {len(scene.emitters)} emitters" if scene.emitters else "")
           + (f"; {len(scene.colliders)} colliders" if scene.colliders else ""))
-    print(f"  output: {scene.output.path}, {scene.output.frames} frames at {scene.output.fps:g} fps ({scene.output.format})")
+    o = scene.output
+    print(f"  output: {o.path}, {o.frames} frames at {o.fps:g} fps ({o.format})"
+          + (f"; surface mesh, {o.surface_resolution}x finer grid, smoothing {o.surface_smoothing:g} cells"
+             if o.surface else ""))
     return 0
 
 

@@ -29,9 +29,10 @@ def scene_with_overrides(path, args) -> "object":
     scene = load_scene(path)
     if args.quality is not None:
         scene = scene.with_quality(args.quality)
-    surface = True if getattr(args, "surface", False) else None
-    if args.num_frames is not None or args.stage_path is not None or surface:
-        scene = scene.replace_output(path=args.stage_path, frames=args.num_frames, surface=surface)
+    if getattr(args, "surface", False):
+        scene.output.surface = True
+    if args.num_frames is not None or args.stage_path is not None:
+        scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
     return scene.validate()
 
 

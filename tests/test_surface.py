@@ -61,6 +61,13 @@ def test_block_against_two_walls_is_closed_there_and_converges_with_resolution()
     assert errors[0] > errors[1] > errors[2] and errors[1] - errors[2] < errors[0] - errors[1]
 
 
+def test_same_particles_same_mesh_on_the_cpu():
+    pos, vol = jittered((0, 0, 0), (6, 5, 4))
+    builder = SurfaceBuilder(3, DX, (8, 8, 8), 2, device="cpu")
+    a, b = builder.build(pos, vol), builder.build(pos, vol)  # the builder's arrays are reused
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.indices, b.indices) and len(a.indices) > 100
+
+
 @pytest.mark.parametrize("radius_cells, bound", [(3, 0.03), (4, 0.03)])
 def test_bubble_inner_wall_encloses_the_gas(radius_cells, bound):
     pos, vol = jittered((0, 0, 0), (16, 16, 16))
@@ -98,12 +105,13 @@ def resting_tank(tmp_path, frames=4):
 
 
 def test_resting_tank_run_writes_a_steady_closed_surface_per_frame(tmp_path):
-    from warp_mpm_bubbles.io.runner import run_scene
+    from warp_mpm_bubbles.io.runner import run_scene, summary
 
     scene = resting_tank(tmp_path)
     result = run_scene(scene, device="cpu", progress=False)
     sim = result.simulation
     assert "surface" in sim.timer.seconds  # its own line in the summary
+    assert "ms per frame" in summary(result).splitlines()[-3]
     p = sim.particles_numpy()
     liquid = p["volume"][p["phase"] == PHASE_LIQUID].sum()
     meshes = [read_surface(scene.output.path, f) for f in range(scene.output.frames + 1)]

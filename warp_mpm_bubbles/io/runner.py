@@ -148,6 +148,8 @@ def summary(result: RunResult) -> str:
             ("foam", "in foam", sim.foam), ("subgrid", "in sub-grid bubbles", sim.subgrid)) if on)
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
+    if "surface" in timer.seconds:  # built once per frame, not per step
+        lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

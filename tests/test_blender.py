@@ -47,6 +47,8 @@ def test_example_opens_ready_in_blender(tmp_path, example):
     assert {"World", "Particles", "Prototypes", "Looks", "LiquidSurface", "Camera", "Sun"} <= set(done["objects"])
     assert done["materials"]["LiquidSurface"] == ["water"]
     assert done["materials"]["water"] == ["water"]  # the prototypes' materials came through
+    assert done["hidden"] == ["water"] and bpy.data.objects["water"].hide_render  # the surface renders the water
+    assert all(not bpy.data.objects[n].hide_render for n in ("air", "foam") if n in bpy.data.objects)
     scene = bpy.context.scene
     assert scene.camera is not None and scene.world is not None
     scene.frame_set(1)

@@ -117,7 +117,8 @@ def _blender(args) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(f"{done['blend']}: {done['fps']:g} fps, frames {done['frames'][0]}-{done['frames'][1]}, "
-          f"{len(done['objects'])} objects")
+          f"{len(done['objects'])} objects" + (f"; hidden (the surface stands for them): {', '.join(done['hidden'])}"
+                                                if done["hidden"] else ""))
     return 0
 
 

@@ -3,7 +3,9 @@
 Imports the USD with Blender's own importer (value clips, instancer, materials), then sets what the
 importer leaves alone: the scene's fps from the stage's timeCodesPerSecond (Blender stays at 24
 otherwise: a 60 fps file plays at 0.4x), the frame range from its start/end time codes, a camera
-framing the animation and a sun light, and saves OUT.blend next to the file.
+framing the animation and a sun light, and saves OUT.blend next to the file. Where the file has the
+liquid's surface mesh, the liquid's particle prototype is hidden (render and viewport), so the water
+renders as the mesh while bubbles and foam stay particles; unhide it to see the particles.
 
 Needs Blender as a Python module: `pip install -e ".[blender]"` (bpy; Python 3.11, and it pins
 numpy < 2, so give it its own virtual environment).
@@ -68,7 +70,7 @@ def open_in_blender(usd_path, blend_path=None) -> dict:
                                    import_visible_only=True)
     if "FINISHED" not in result:
         raise RuntimeError(f"Blender could not import {usd_path}")
-    _ensure_materials(usd_path)
+    hidden = _ensure_materials(usd_path)
     scene = bpy.context.scene
     fps = info["fps"]
     scene.render.fps = max(1, round(fps))
@@ -88,26 +90,41 @@ def open_in_blender(usd_path, blend_path=None) -> dict:
     bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
     materials = {o.name: [s.material.name for s in o.material_slots if s.material] for o in scene.objects
                  if o.type == "MESH"}
-    return {"blend": str(blend_path), "fps": scene.render.fps / scene.render.fps_base,
+    return {"blend": str(blend_path), "fps": scene.render.fps / scene.render.fps_base, "hidden": hidden,
             "frames": (scene.frame_start, scene.frame_end), "objects": sorted(o.name for o in scene.objects),
             "materials": materials}
 
 
-def _ensure_materials(usd_path) -> None:
+def _ensure_materials(usd_path) -> list:
     """Give every imported mesh the material its prim is bound to in the file: Blender 5.0's importer
-    drops the bindings of UsdGeom.Sphere prims (the particle prototypes) while it keeps the meshes'."""
+    drops the bindings of UsdGeom.Sphere prims (the particle prototypes) while it keeps the meshes'.
+    Where the file has a surface, the prototypes sharing its material (the liquid's particles) are
+    hidden, so the water renders as the mesh; returns their names."""
     import bpy
     from pxr import Usd, UsdGeom, UsdShade
 
+    from .usd_output import INSTANCER, SURFACE
+
     stage = Usd.Stage.Open(str(usd_path))
+    bound = lambda prim: UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]  # noqa: E731
     for prim in stage.Traverse():
         if not prim.IsA(UsdGeom.Gprim):
             continue
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        material = bound(prim)
         obj = bpy.data.objects.get(prim.GetName())
         mat = bpy.data.materials.get(material.GetPrim().GetName()) if material else None
         if obj is not None and obj.type == "MESH" and mat is not None and not any(s.material for s in obj.material_slots):
             obj.data.materials.append(mat)
+    surface, inst = stage.GetPrimAtPath(SURFACE), UsdGeom.PointInstancer.Get(stage, INSTANCER)
+    if not surface or not inst or not bound(surface):
+        return []
+    hidden = []
+    for target in inst.GetPrototypesRel().GetTargets():
+        obj = bpy.data.objects.get(target.name)
+        if obj is not None and bound(stage.GetPrimAtPath(target)).GetPath() == bound(surface).GetPath():
+            obj.hide_render = obj.hide_viewport = True  # its instances go with it
+            hidden.append(obj.name)
+    return hidden
 
 
 def _add_camera(scene, centre, size):

@@ -1,4 +1,4 @@
-"""Command line: `warp-mpm-bubbles run SCENE.toml` and `warp-mpm-bubbles check SCENE.toml`.
+"""Command line: `warp-mpm-bubbles run SCENE.toml`, `check SCENE.toml`, `preview OUT.usdc`, `blender OUT.usdc`.
 
 Exit codes: 0 done; 1 the simulation stopped (a NaN, a frame needing too many steps); 2 bad input
 (a scene, an argument, a device or memory this machine lacks); 3 a bug (an unexpected exception:
@@ -54,6 +54,8 @@ def add_run_overrides(parser: argparse.ArgumentParser):
                         help="continue a killed run from its last checkpoint, keeping its frames")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing output (only files this project wrote are deleted)")
+    parser.add_argument("--surface", action="store_true",
+                        help="also write the liquid's surface mesh per frame (sets [output].surface = true)")
 
 
 def scene_with_overrides(path, args) -> "object":
@@ -61,6 +63,8 @@ def scene_with_overrides(path, args) -> "object":
     scene = load_scene(path)
     if args.quality is not None:
         scene = scene.with_quality(args.quality)
+    if getattr(args, "surface", False):
+        scene.output.surface = True
     if args.num_frames is not None or args.stage_path is not None:
         scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
     return scene.validate()
@@ -141,11 +145,14 @@ def main(argv=None) -> int:
     preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
     preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
+    _add_blender_parser(sub)
     args = parser.parse_args(argv)
     return guarded(lambda: _main(args))
 
 
 def _main(args) -> int:
+    if args.command == "blender":
+        return _blender(args)
     if args.command == "preview":
         return _preview(args)
     try:
@@ -157,6 +164,27 @@ def _main(args) -> int:
         return 2
 
     return _run(scene, args)
+
+
+def _add_blender_parser(sub):
+    blender_p = sub.add_parser("blender", help="open a written animation in Blender (needs bpy) and save a .blend "
+                                              "with fps, frame range, materials, a camera and a light")
+    blender_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
+    blender_p.add_argument("--blend", default=None, help="output .blend (default: next to the stage)")
+
+
+def _blender(args) -> int:
+    from .io.blender import BlenderUnavailable, open_in_blender
+
+    try:
+        done = open_in_blender(args.stage, args.blend)
+    except (BlenderUnavailable, FileNotFoundError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"{done['blend']}: {done['fps']:g} fps, frames {done['frames'][0]}-{done['frames'][1]}, "
+          f"{len(done['objects'])} objects" + (f"; hidden (the surface stands for them): {', '.join(done['hidden'])}"
+                                                if done["hidden"] else ""))
+    return 0
 
 
 def _preview(args) -> int:
@@ -206,7 +234,10 @@ def _check(path, device=None) -> int:
     print(f"  effects: {', '.join(scene.effect_names) or 'none (liquid only)'}"
           + (f"; {len(scene.emitters)} emitters" if scene.emitters else "")
           + (f"; {len(scene.colliders)} colliders" if scene.colliders else ""))
-    print(f"  output: {scene.output.path}, {scene.output.frames} frames at {scene.output.fps:g} fps ({scene.output.format})")
+    o = scene.output
+    print(f"  output: {o.path}, {o.frames} frames at {o.fps:g} fps ({o.format})"
+          + (f"; surface mesh, {o.surface_resolution}x finer grid, smoothing {o.surface_smoothing:g} cells"
+             if o.surface else ""))
     print(f"  memory: about {(estimate['particles'] + estimate['grid']) / 1e9:.2g} GB on the device "
           f"(particles {estimate['particles'] / 1e9:.2g}, grid {estimate['grid'] / 1e9:.2g}), "
           f"{estimate['host'] / 1e9:.2g} GB more on the host while seeding")

@@ -292,22 +292,25 @@ class Simulation:
     def stable_dt(self) -> float:
         return min(self.dt_limits().values())
 
-    def advance_to(self, t_end: float):
-        """Substep to exactly t_end, splitting what remains into equal steps under the limits."""
+    def advance_to(self, t_end: float, on_step=None):
+        """Substep to exactly t_end, splitting what remains into equal steps under the limits;
+        `on_step(dt, remaining)` runs after each step (the runner's heartbeat and step guard)."""
         while self.time < t_end:
             remaining = t_end - self.time
             n = max(1, math.ceil(remaining / self.stable_dt() - 1e-9))
             dt = remaining / n
             self.step(dt)
             self.time = t_end if n == 1 else self.time + dt
+            if on_step:
+                on_step(dt, t_end - self.time)
 
     @property
     def frame_dt(self) -> float:
         return 1.0 / self.scene.output.fps
 
-    def advance_frame(self):
+    def advance_frame(self, on_step=None):
         self.frame += 1
-        self.advance_to(self.frame * self.frame_dt)
+        self.advance_to(self.frame * self.frame_dt, on_step)
         self._compact()
 
     def _compact(self):

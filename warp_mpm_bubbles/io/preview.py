@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .preview_surface import draw_oblique, draw_surface, liquid_prototype, oblique_view
 from .usd_output import read_frames
 
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
@@ -69,7 +70,9 @@ def check_image_path(png_path):
 
 
 def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, dpi=110, color_by="auto"):
-    """Scatter the particles of each frame projected on `axes` (x, y by default).
+    """Scatter the particles of each frame projected on `axes` (x, y by default); where the file has
+    the liquid's surface mesh, the surface (2D: the cut through the slab, 3D: shaded) instead of the
+    liquid's particles, with the other particles (bubbles, foam) on top.
 
     color_by: "speed", "material" (each material its own colour, later materials drawn on top, so
     bubbles show inside the water), or "auto" (material when there are several, else speed).
@@ -104,10 +107,22 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
     by_material = color_by == "material" or (color_by == "auto" and n_materials > 1)
     palette = ("#3373e6", "#f2a81d", "#e64b3c", "#3cbf6e")
     sc = None
+    liquid = liquid_prototype(stage_path)  # not None: the file has a surface mesh, drawn instead of the water
+    flat = bool(np.ptp(all_pos[:, 2]) == 0)  # a 2D run's slab
     for ax, f in zip(axs[0], frames):
         p = data["frames"][f]
+        if liquid is not None and not flat:  # 3D: the shaded mesh seen from above at an angle
+            box = np.stack([all_pos.min(axis=0), all_pos.max(axis=0)])
+            corners = np.array([[box[(i >> a) & 1, a] for a in range(3)] for i in range(8)])
+            draw_oblique(ax, stage_path, f, p["positions"][p["proto_indices"] != liquid], oblique_view(axes), corners)
+            ax.set_title(f"frame {f}  t = {f / data['fps']:.3f} s", fontsize=9)
+            continue
+        if liquid is not None and draw_surface(ax, stage_path, f, axes, flat=flat):
+            p = {k: v[p["proto_indices"] != liquid] if k != "extent" else v for k, v in p.items()}
         pos = p["positions"]
-        if by_material:
+        if not len(pos):  # all of it drawn as the surface
+            pass
+        elif by_material:
             for m in range(n_materials):  # later materials (gas, foam) drawn larger, on top
                 pts = pos[p["proto_indices"] == m]
                 ax.scatter(pts[:, axes[0]], pts[:, axes[1]], s=1.0 if m == 0 else 3.0, color=palette[m % len(palette)],

@@ -14,8 +14,12 @@ import numpy as np
 from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
+from .devices import check_device, check_memory
+from .guards import Heartbeat, check_fluid_left, frame_step_guard
 from .ownership import OutputClaim, write_failed
 from .usd_colliders import write_colliders
+from .usd_materials import dress_stage
+from .surface import builder_for, liquid_surface
 from .usd_output import StageWriter
 
 
@@ -56,59 +60,82 @@ def _clock(seconds: float) -> str:
 
 
 def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bool = False,
-              overwrite: bool = False) -> RunResult:
+              overwrite: bool = False, on_frame=None) -> RunResult:
     """Simulate scene.output.frames frames after the initial one, writing each to scene.output.path.
 
     The output is locked for the run (a second run on it is refused, naming the holder) and an
     existing one is replaced only with overwrite=True, which deletes only files this project
-    wrote; both are checked before any simulation work (io/ownership.py). After every frame a
-    checkpoint is saved beside the frames; resume=True continues from it (a killed run), keeping
-    the frames already written. A failed write (a full disk) raises OutputWriteError, keeping the
-    finished frames. Progress and the closing summary go to `log` (default: the sys.stderr of
-    the moment).
+    wrote; both are checked before any simulation work (io/ownership.py), and so are the device
+    and the memory the scene needs (io/devices.py). After every frame a checkpoint is saved beside
+    the frames; resume=True continues from it (a killed run), keeping the frames already written.
+    A failed write (a full disk) raises OutputWriteError, keeping the finished frames; a frame
+    that would need more than [solver].max_steps_per_frame steps stops before it starts
+    (io/guards.py). `on_frame(sim)` is called after each frame is written, frame 0 included.
+    Progress, a heartbeat every 30 s on a log, and the closing summary go to `log` (default: the
+    sys.stderr of the moment).
     """
     log = log or sys.stderr
     start = time.perf_counter()
     out = scene.output
     checkpoint = checkpoint_path(out.path)
+    dev = check_device(device)
+    check_memory(scene, dev)
     with OutputClaim(out.path, overwrite=overwrite, resume=resume, log=log) as claim:
         if resume and not checkpoint.exists():
             raise SimulationError(f"nothing to resume: no checkpoint at {checkpoint}; run without --resume")
-        sim = Simulation(scene, device=device)
+        sim = Simulation(scene, device=dev)
+        check_fluid_left(sim)
         resume_after = None
         if resume:
             load_checkpoint(sim, checkpoint)
             resume_after = sim.frame
             if progress:
                 log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
-        _frame_loop(sim, claim, resume_after, log if progress else None)
+        _frame_loop(sim, claim, resume_after, log if progress else None, on_frame)
     result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
     if progress:
         log.write(summary(result) + "\n")
     return result
 
 
-def _frame_loop(sim: Simulation, claim, resume_after, log) -> None:
+def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame) -> None:
     """Write frames until scene.output.frames; a failed write becomes OutputWriteError."""
     scene, out = sim.scene, sim.scene.output
     checkpoint = checkpoint_path(out.path)
     materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
+    looks = [(m.name, m.kind, tuple(m.color)) for m in scene.materials.values()]
     bar = ProgressBar(out.frames, stream=log) if log else None
-    decorate = None
-    if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
-        def decorate(stage):
+    beat, started = Heartbeat(log) if log else None, time.perf_counter()
+
+    def decorate(stage):
+        dress_stage(stage, looks)  # UsdPreviewSurface materials on the prototypes and the surface
+        if scene.colliders:  # the shapes (and paths) of the colliders, for the DCC to show
             write_colliders(stage, scene.colliders, scene.dim, sim.grid.dx, out.fps, out.frames)
+
+    def on_step(dt, remaining):
+        frame_step_guard(sim, remaining=remaining)  # a limit that collapses mid-frame stops the run
+        if beat:
+            beat.tick(sim.frame, sim.stats.steps, dt, time.perf_counter() - started)
+
+    def write():
+        done = _write(sim, writer, checkpoint, builder)
+        if on_frame:
+            on_frame(sim)
+        return done
+
     writer, saved = None, resume_after  # saved: the frame the checkpoint on disk resumes after
     try:
         writer = StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
                              format=out.format, up_axis=out.up_axis, resume_after=resume_after,
-                             decorate=decorate, claim=claim)
+                             decorate=decorate, claim=claim, surface=out.surface)
+        builder = builder_for(sim, out.surface_resolution, out.surface_smoothing) if out.surface else None
         with writer:
             if resume_after is None:
-                saved = _write(sim, writer, checkpoint)
+                saved = write()
             while sim.frame < out.frames:
-                sim.advance_frame()
-                saved = _write(sim, writer, checkpoint)
+                frame_step_guard(sim)
+                sim.advance_frame(on_step=on_step)
+                saved = write()
                 if bar:
                     bar.update(sim.frame, sim.time, sim.stats.steps)
     except OSError as err:
@@ -118,16 +145,26 @@ def _frame_loop(sim: Simulation, claim, resume_after, log) -> None:
         raise write_failed(err, out.path, kept, saved) from err
 
 
-def _write(sim: Simulation, writer: StageWriter, checkpoint) -> int:
+def _write(sim: Simulation, writer: StageWriter, checkpoint, builder=None) -> int:
     """The frame first (durable when write_frame returns), then the checkpoint that resumes after it."""
+    surface = _surface(sim, builder)
     with sim.timer("output"):
         p = sim.particles_numpy()
         radii = None  # without foam or sub-grid bubbles every particle has the output radius
         if sim.stage("foam") or sim.stage("subgrid_bubbles"):  # those are real bubbles: the radius of their own volume
             radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
-        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii)
+        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii,
+                           surface=surface)
         save_checkpoint(sim, checkpoint)
     return sim.frame
+
+
+def _surface(sim: Simulation, builder):
+    """The liquid's mesh this frame when [output].surface is on (its own line in the summary)."""
+    if builder is None:
+        return None
+    with sim.timer("surface"):
+        return liquid_surface(builder, sim.particles_numpy())
 
 
 def summary(result: RunResult) -> str:
@@ -156,6 +193,8 @@ def summary(result: RunResult) -> str:
             ("foam", "in foam", "foam"), ("subgrid", "in sub-grid bubbles", "subgrid_bubbles")) if sim.stage(on))
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
+    if "surface" in timer.seconds:  # built once per frame, not per step
+        lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

@@ -12,6 +12,8 @@ import math
 
 from pxr import Gf, UsdGeom, Vt
 
+from .usd_materials import bind_collider
+
 ROOT = "/World/Colliders"
 COLOR = (0.55, 0.55, 0.58)
 SEGMENTS = 48  # around a revolved glass
@@ -92,6 +94,7 @@ def write_colliders(stage, colliders, dim: int, slab: float, fps: float, frames:
             prim.CreateFaceVertexCountsAttr([len(f) for f in faces])
             prim.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
         prim.CreateDisplayColorAttr([Gf.Vec3f(*COLOR)])
+        bind_collider(stage, prim.GetPrim(), COLOR)
         # Glass and (2D) prisms are built from their base; the primitives are centred.
         lift = slab / 2 if flat and c.type in ("sphere", "cylinder", "box") else 0.0
         translate = prim.AddTranslateOp()  # first in xformOpOrder: applied after the scale

@@ -34,6 +34,7 @@ from .ownership import LAYER_KEY, OutputClaim, temp_path
 FORMATS = ("instancer", "points", "both")
 INSTANCER = "/World/Particles"
 POINTS = "/World/ParticlePoints"
+SURFACE = "/World/LiquidSurface"  # the liquid's surface mesh (io/surface.py), with `surface=True`
 _T = Sdf.ValueTypeNames
 # Time-varying attributes per prim; they live in the per-frame clip layers.
 _CLIP_ATTRS = {
@@ -43,6 +44,8 @@ _CLIP_ATTRS = {
     POINTS: [("points", _T.Point3fArray), ("widths", _T.FloatArray), ("ids", _T.Int64Array),
              ("velocities", _T.Vector3fArray), ("extent", _T.Float3Array),
              ("primvars:displayColor", _T.Color3fArray), ("primvars:materialIndex", _T.IntArray)],
+    SURFACE: [("points", _T.Point3fArray), ("faceVertexCounts", _T.IntArray),
+              ("faceVertexIndices", _T.IntArray), ("normals", _T.Normal3fArray), ("extent", _T.Float3Array)],
 }
 
 
@@ -91,13 +94,14 @@ class StageWriter:
     def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
                  particle_radius: float, format: str = "instancer", up_axis: str = "Y",
                  meters_per_unit: float = 1.0, resume_after: int | None = None, decorate=None,
-                 overwrite: bool = False, claim: OutputClaim | None = None):
+                 overwrite: bool = False, claim: OutputClaim | None = None, surface: bool = False):
         """resume_after=k keeps the frames already on disk up to k (a resumed run) and goes on
         from k + 1; otherwise an existing output is refused (OutputExists) unless overwrite=True,
         which deletes only the files this project wrote. claim: an OutputClaim the caller already
         holds (run_scene, which claims before building the simulation); without one the writer
         takes its own and releases it on close(). decorate(stage), if given, adds prims that do
-        not change per frame (or are sampled up front: colliders) to the top layer."""
+        not change per frame (or are sampled up front: colliders) to the top layer. surface=True
+        adds the clip-animated mesh SURFACE, filled by write_frame(surface=...)."""
         t0 = time.perf_counter()
         if format not in FORMATS:
             raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
@@ -115,6 +119,8 @@ class StageWriter:
         self._n_mat = len(materials)
         self._prims = [p for p, on in ((INSTANCER, format != "points"),
                                        (POINTS, format != "instancer")) if on]
+        if surface:
+            self._prims.append(SURFACE)
         ext = ".usda" if self.path.suffix == ".usda" else ".usdc"
         self._frames_dir = self.path.with_name(self.path.stem + "_frames")
         self._ext = ext
@@ -190,6 +196,8 @@ class StageWriter:
             pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
             pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
             UsdGeom.PrimvarsAPI(pts).CreatePrimvar("materialIndex", _T.IntArray, UsdGeom.Tokens.vertex)
+        if SURFACE in self._prims:
+            _define_surface(stage)
         if decorate is not None:
             decorate(stage)
         return layer  # the stage is dropped: later edits go straight to the layer
@@ -204,8 +212,10 @@ class StageWriter:
         return paths
 
     def write_frame(self, frame: int, positions: np.ndarray, velocities: np.ndarray,
-                    ids: np.ndarray, material: np.ndarray, radii: np.ndarray | None = None) -> None:
-        """radii (N,), metres: per-particle sizes (foam, sub-grid bubbles); None: particle_radius for all."""
+                    ids: np.ndarray, material: np.ndarray, radii: np.ndarray | None = None,
+                    surface=None) -> None:
+        """radii (N,), metres: per-particle sizes (foam, sub-grid bubbles); None: particle_radius for all.
+        surface: the liquid's mesh this frame (io/surface.SurfaceMesh) when the writer has one; None: empty."""
         t0 = time.perf_counter()
         if self._closed:
             raise ValueError("write_frame after close()")
@@ -239,6 +249,10 @@ class StageWriter:
         if POINTS in self._prims:
             values[POINTS, "widths"] = Vt.FloatArray.FromNumpy(2 * rad)
             values[POINTS, "primvars:displayColor"] = Vt.Vec3fArray.FromNumpy(self._colors[mat])
+        if SURFACE in self._prims:
+            values.update(_surface_values(surface))
+        elif surface is not None:
+            raise ValueError("write_frame got a surface but the writer was made without surface=True")
 
         layer = Sdf.Layer.CreateAnonymous(self._ext)
         layer.customLayerData = {LAYER_KEY: self._meta}  # which run wrote this frame
@@ -320,6 +334,34 @@ class StageWriter:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _define_surface(stage) -> None:
+    """The mesh prim, its clip attributes declared with no values (they come from the frames)."""
+    mesh = UsdGeom.Mesh.Define(stage, SURFACE)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # a triangle mesh, not a subdivision cage
+    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)  # counter-clockwise seen from outside
+    mesh.CreateDoubleSidedAttr(False)  # closed: a renderer refracts in and out through it
+    for create in (mesh.CreatePointsAttr, mesh.CreateFaceVertexCountsAttr, mesh.CreateFaceVertexIndicesAttr,
+                   mesh.CreateNormalsAttr, mesh.CreateExtentAttr):
+        create()
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+
+
+def _surface_values(surface) -> dict:
+    """Clip values of SURFACE for one frame from a SurfaceMesh (None: an empty mesh)."""
+    if surface is None:
+        pts = nrm = np.zeros((0, 3), np.float32)
+        tri = np.zeros((0, 3), np.int32)
+    else:
+        pts = np.ascontiguousarray(surface.points, np.float32)
+        nrm = np.ascontiguousarray(surface.normals, np.float32)
+        tri = np.ascontiguousarray(surface.indices, np.int32)
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.zeros(3))
+    return {(SURFACE, "points"): Vt.Vec3fArray.FromNumpy(pts), (SURFACE, "normals"): Vt.Vec3fArray.FromNumpy(nrm),
+            (SURFACE, "faceVertexCounts"): Vt.IntArray.FromNumpy(np.full(len(tri), 3, np.int32)),
+            (SURFACE, "faceVertexIndices"): Vt.IntArray.FromNumpy(tri.reshape(-1)),
+            (SURFACE, "extent"): Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])}
 
 
 def read_frames(path) -> dict:

@@ -3,6 +3,7 @@ given and what is allowed (shared by model.py and effects.py)."""
 from __future__ import annotations
 
 import difflib
+from dataclasses import fields
 import math
 import numbers
 import operator
@@ -98,6 +99,11 @@ class _Checker:
             self.fail(key, v, f"expected a list of {n} numbers{why}")
         return tuple(self.number(f"{key}[{i}]", x, **limits) for i, x in enumerate(v))
 
+    def flag(self, key, v) -> bool:
+        if not isinstance(v, (bool, np.bool_)):  # TOML true/false only: 1 and "yes" are refused
+            self.fail(key, v, "expected true or false")
+        return bool(v)
+
     def choice(self, key, v, options):
         if not isinstance(v, str) or v not in options:
             allowed = "one of " + ", ".join(f"'{o}'" for o in options)
@@ -108,6 +114,16 @@ class _Checker:
         if not isinstance(v, cls):
             self.fail(key, v, f"expected {what}")
         return v
+
+
+def _plain(obj, skip=()):
+    """A dataclass as TOML-shaped data: lists for tuples, None (unset) fields left out."""
+    def conv(v):
+        if isinstance(v, (tuple, list, np.ndarray)):
+            return [conv(x) for x in v]
+        return dict(v) if isinstance(v, dict) else v
+    return {f.name: conv(getattr(obj, f.name)) for f in fields(obj)
+            if f.name not in skip and getattr(obj, f.name) is not None}
 
 
 def dim_why(dim):

@@ -21,7 +21,7 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from .checks import AXES, SceneError, _Checker, _g, derive, dim_why, underive
+from .checks import AXES, SceneError, _Checker, _g, _plain, derive, dim_why, underive
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from ..core.grid import INTERFACES, PRECONDITIONERS
@@ -290,6 +290,9 @@ class Output:
     format: str = "instancer"
     particle_radius: float | None = None
     up_axis: str = "Y"
+    surface: bool = False  # the liquid's surface mesh per frame (io/surface.py)
+    surface_resolution: int = 2  # surface grid cells per simulation cell and axis; <= 8 (512 nodes a cell)
+    surface_smoothing: float = 1.25  # kernel radius, cells: 1.0 leaves voids, > 4 rounds all but the tank away
 
     def _validate(self, c: _Checker, scene: Scene):
         t = "[output]"
@@ -305,6 +308,9 @@ class Output:
             derive(self, "particle_radius", self.default_radius(scene))
         self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
         self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
+        self.surface = c.flag(f"{t}.surface", self.surface)
+        self.surface_resolution = c.number(f"{t}.surface_resolution", self.surface_resolution, ge=1, le=8, whole=True)
+        self.surface_smoothing = c.number(f"{t}.surface_smoothing", self.surface_smoothing, ge=0.5, le=4)
 
     @staticmethod
     def default_radius(scene) -> float:
@@ -565,16 +571,6 @@ def _build(c: _Checker, cls, key, d, **given):
         if name not in d and name not in given:
             c.missing(f"{key}.{name}", f"required keys: {', '.join(n for n in required if n not in given)}")
     return cls(**d, **given)
-
-
-def _plain(obj, skip=()):
-    """A dataclass as TOML-shaped data: lists for tuples, None (unset) fields left out."""
-    def conv(v):
-        if isinstance(v, (tuple, list, np.ndarray)):
-            return [conv(x) for x in v]
-        return dict(v) if isinstance(v, dict) else v
-    return {f.name: conv(getattr(obj, f.name)) for f in fields(obj)
-            if f.name not in skip and getattr(obj, f.name) is not None}
 
 
 def load_scene(path) -> Scene:

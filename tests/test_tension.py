@@ -98,12 +98,13 @@ def test_tension_runs_only_when_asked_and_limits_the_step(drop, tmp_path):
 
 
 def test_gas_films_retract_into_the_bubble_beside_them():
-    # The sub-cell part of surface tension (force_kernels.retract_gas_films), on a hand-made 2D grid
+    # The sub-cell part of surface tension (physics/tension.retract_gas_films), on a hand-made 2D grid
     # of fluid cells whose left half is gas: a gas particle in a liquid cell next to the gas moves
     # towards it by min(sqrt(2 sigma / (rho dx)) dt, dx/4); a gas particle with no gas cell in its
     # 3x3 neighbourhood, and any liquid particle, stay where they are.
-    from warp_mpm_bubbles.physics.tension import retract_gas_films
+    from warp_mpm_bubbles.core.geometry import GridGeometry
     from warp_mpm_bubbles.core.grid import FLUID, PHASE_GAS, PHASE_LIQUID
+    from warp_mpm_bubbles.physics.tension import retract_gas_films
 
     dx, n = 0.001, 8
     types = np.full((n, n, 1), FLUID, dtype=np.int32)
@@ -113,11 +114,13 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     x = np.array([[4.3, 4.5, 0.5], [7.5, 4.5, 0.5], [4.3, 2.5, 0.5]], dtype=np.float32) * dx
     particle_phase = np.array([PHASE_GAS, PHASE_GAS, PHASE_LIQUID], dtype=np.int32)
     speed = math.sqrt(2.0 * SIGMA / (1000.0 * dx))  # 0.38 m/s: a one-cell film's Taylor-Culick speed
+    geo = GridGeometry()
+    geo.origin, geo.dx, geo.dim, geo.domain_hi = wp.vec3(0.0), dx, 2, wp.vec3(n * dx, n * dx, dx)
     for dt, expected in ((1.0e-4, speed * 1.0e-4), (1.0e-2, 0.25 * dx)):
         xs = wp.array(x, dtype=wp.vec3, device="cpu")
         wp.launch(retract_gas_films, 3, device="cpu", inputs=[
             wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
-            speed, wp.vec3(0.0), dx, 2, dt, wp.vec3(n * dx, n * dx, dx), xs,
+            speed, geo, dt, xs,
             wp.array(particle_phase, device="cpu"), wp.ones(3, dtype=wp.int32, device="cpu")])
         moved = xs.numpy() - x
         # the pull points at the gas-weighted centroid of the gas cells (3, 3..5): straight to -x

@@ -5,6 +5,8 @@ before the pressure solve. A scene turns it on with an [effects.damping] table:
     [effects.damping]
     rate = 2.0      # 1/s: velocities fall by e in half a second (without other forces)
 
+Run as a script it simulates SCENE below, water sloshing in a tank, damped:
+
     python examples/damping_stage.py --device cpu --num-frames 12 --stage-path damped.usdc
 """
 
@@ -49,7 +51,37 @@ class DampingStage(Stage):
             sim.launch(scale_faces, sim.grid.face_shape(a), [factor, sim.fields.vel[a]])
 
 
+SCENE = """
+name = "damped_tank"
+[domain]
+size = [0.4, 0.2]
+cell_size = 0.01
+gravity = [0.0, -9.81]
+[solver]
+particles_per_cell = 4
+[materials.water]
+kind = "liquid"
+[[shapes]]
+type = "box"
+material = "water"
+min = [0.0, 0.0]
+max = [0.15, 0.15]
+[effects.damping]
+rate = 2.0
+[output]
+path = "damped_tank.usdc"
+fps = 30
+frames = 24
+"""
+
 if __name__ == "__main__":
+    import tempfile
+
     from warp_mpm_bubbles.cli import run_example
 
-    sys.exit(run_example(pathlib.Path(__file__).with_name("damped_tank.toml"), __doc__))
+    # The scene file is written here (examples/*.toml are scenes every install can load; this one
+    # needs the stage above registered first, which importing this module has just done).
+    with tempfile.TemporaryDirectory() as tmp:
+        scene_file = pathlib.Path(tmp) / "damped_tank.toml"
+        scene_file.write_text(SCENE)
+        sys.exit(run_example(scene_file, __doc__))

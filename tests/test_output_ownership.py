@@ -131,10 +131,10 @@ def test_the_lock_is_released_on_an_interrupt_and_the_run_resumes(tmp_path, monk
     sc = scene(tmp_path, frames=4)
     advance = Simulation.advance_frame
 
-    def interrupted(sim):
+    def interrupted(sim, **kw):
         if sim.frame == 2:
             raise KeyboardInterrupt
-        advance(sim)
+        advance(sim, **kw)
 
     monkeypatch.setattr(Simulation, "advance_frame", interrupted)
     with pytest.raises(KeyboardInterrupt):

@@ -109,25 +109,18 @@ def _run(scene, args) -> int:
     import warp as wp  # deferred: `check` and bad scenes never start Warp
 
     wp.config.quiet = True
-    from .io.devices import check_device, check_memory as check_device_memory
     from .io.runner import run_scene
     from .core.simulation import SimulationError
 
-    try:
-        device = check_device(args.device)  # before any work: a missing GPU lists the devices there are
-        check_device_memory(scene, device)
-    except (SimulationError, SceneError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    try:
+    try:  # run_scene claims the output, then checks the device and the memory, before any work
         run_scene(scene, device=args.device, progress=not args.quiet, resume=args.resume,
                   overwrite=args.overwrite)
-    except SceneError as err:  # refused at run time (e.g. memory, once the lead's run_scene checks it)
+    except SceneError as err:  # refused before the run (the memory the scene needs)
         print(f"error: {err}", file=sys.stderr)
         return 2
     except SimulationError as err:
         print(f"error: {err}", file=sys.stderr)
-        return getattr(err, "exit_code", 1)  # io/ownership.py: 2 for a refused output, 1 for a failed write
+        return getattr(err, "exit_code", 1)  # 2: refused before any work (output, device); 1: the run stopped
     return 0
 
 

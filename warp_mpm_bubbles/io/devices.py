@@ -17,6 +17,8 @@ GPU_NEEDS = ("a GPU run needs an NVIDIA CUDA-capable GPU, its NVIDIA driver (`nv
 class DeviceError(SimulationError):
     """The device asked for does not exist here; the message lists those that do."""
 
+    exit_code = 2  # a refusal before any work, like a bad scene
+
 
 def _available() -> list[str]:
     try:

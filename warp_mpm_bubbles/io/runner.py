@@ -65,7 +65,7 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
 
     The output is locked for the run (a second run on it is refused, naming the holder) and an
     existing one is replaced only with overwrite=True, which deletes only files this project
-    wrote; both are checked before any simulation work (io/ownership.py), and so are the device
+    wrote; both are checked before any simulation work (io/ownership.py), and then the device
     and the memory the scene needs (io/devices.py). After every frame a checkpoint is saved beside
     the frames; resume=True continues from it (a killed run), keeping the frames already written.
     A failed write (a full disk) raises OutputWriteError, keeping the finished frames; a frame
@@ -78,11 +78,11 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
     start = time.perf_counter()
     out = scene.output
     checkpoint = checkpoint_path(out.path)
-    dev = check_device(device)
-    check_memory(scene, dev)
     with OutputClaim(out.path, overwrite=overwrite, resume=resume, log=log) as claim:
         if resume and not checkpoint.exists():
             raise SimulationError(f"nothing to resume: no checkpoint at {checkpoint}; run without --resume")
+        dev = check_device(device)
+        check_memory(scene, dev)
         sim = Simulation(scene, device=dev)
         check_fluid_left(sim)
         resume_after = None

@@ -282,6 +282,9 @@ class Output:
         format: "instancer" (UsdGeomPointInstancer, default) | "points" (UsdGeomPoints) | "both".
         particle_radius: m, for the spheres drawn; None: half the particle spacing.
         up_axis: "Y" (default) | "Z", the stage's upAxis.
+        surface: also write the liquid's surface mesh per frame (/World/LiquidSurface; io/surface.py).
+        surface_resolution: surface grid cells per simulation cell and axis (1..8; default 2).
+        surface_smoothing: the surface kernel's radius, in simulation cells (0.5..4; default 1.25).
     """
 
     path: str = "out.usdc"

@@ -7,6 +7,7 @@ import sys
 
 from .scene.quality import PRESETS
 from .scene.model import SceneError, load_scene
+from .io.wedge import add_wedge_arguments
 
 
 def add_run_overrides(parser: argparse.ArgumentParser):
@@ -72,7 +73,14 @@ def main(argv=None) -> int:
     preview_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
     preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
+    wedge_p = sub.add_parser("wedge", help="run variations of a scene (a wedge) as Dask tasks, one output per member")
+    add_wedge_arguments(wedge_p)
     args = parser.parse_args(argv)
+
+    if args.command == "wedge":
+        from .io.wedge import wedge_command
+
+        return wedge_command(args)
 
     if args.command == "preview":
         from pathlib import Path

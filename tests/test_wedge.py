@@ -70,11 +70,16 @@ def test_members_are_the_product_or_the_zip_named_for_their_values(tmp_path):
     assert "particle_radius" not in by_cell[0].scene["output"]
 
 
-def test_cli_refuses_a_bad_member_with_exit_code_2(tmp_path, capsys):
+def toml_scene(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text('[domain]\nsize = [0.4, 0.2]\ncell_size = 0.0125\n[materials.water]\n'
                      '[[shapes]]\ntype = "box"\nmaterial = "water"\nmin = [0.0, 0.0]\nmax = [0.1, 0.15]\n'
-                     f'[output]\npath = "{(tmp_path / "s.usdc").as_posix()}"\nframes = 2\n')
+                     f'[output]\npath = "{(tmp_path / "s.usdc").as_posix()}"\nfps = 60\nframes = 2\n')
+    return scene
+
+
+def test_cli_refuses_a_bad_member_with_exit_code_2(tmp_path, capsys):
+    scene = toml_scene(tmp_path)
     assert main(["wedge", str(scene), "--vary", "materials.water.density=1000,-1", "--out", str(tmp_path / "w")]) == 2
     err = capsys.readouterr().err
     assert "wedge member 1 'density=-1'" in err and "[materials.water].density" in err
@@ -157,7 +162,7 @@ def test_a_wedge_equals_separate_runs_bit_for_bit(tmp_path, client, references):
         assert r["attempts"] == 1 and r["resumed"] is False
     assert len({r["worker"] for r in result.results}) == 2  # both workers took members
     rows = (tmp_path / "w" / "summary.csv").read_text().splitlines()
-    assert rows[0].startswith("member,values,status,wall_s,steps,cg_iterations")
+    assert rows[0].startswith("member,values,status,wall_s,cpu_s,steps,cg_iterations")
     assert len(rows) == 5 and all(",ok," in row for row in rows[1:])
     assert (tmp_path / "w" / "summary.md").read_text().count("| ok |") == 4
     png = (tmp_path / "w" / "contact_sheet.png").read_bytes()
@@ -250,3 +255,20 @@ def test_a_failing_member_is_reported_and_the_others_finish(tmp_path, client, re
     summary = (tmp_path / "w" / "summary.md").read_text()
     assert "1/2 members finished" in summary and "| failed |" in summary and "non-finite" in summary
     assert sorted(read_frames(result.members[0].stage)["frames"]) == [0, 1]  # what it wrote before failing
+
+
+@pytest.mark.slow
+def test_cli_wedge_on_a_running_scheduler_and_a_rerun_picks_up_the_finished_members(tmp_path, client, capsys):
+    args = ["wedge", str(toml_scene(tmp_path)), "--vary", "solver.cfl=0.3,0.5", "--vary", "solver.seed=0,1", "--zip",
+            "--out", str(tmp_path / "w"), "--scheduler", client.scheduler.address, "--device", "cpu", "--quiet"]
+    assert main(args) == 0
+    assert "2/2 members finished" in capsys.readouterr().out
+    stage = tmp_path / "w" / "cfl=0.5_seed=1" / "s.usdc"
+    first = read_frames(stage)["frames"]
+    assert main(args) == 0  # the same wedge again: each member resumes from its final checkpoint
+    rows = (tmp_path / "w" / "summary.csv").read_text().splitlines()[1:]
+    assert [row.split(",")[0] for row in rows] == ["cfl=0.3_seed=0", "cfl=0.5_seed=1"]
+    assert all(",ok," in row and ",1,True,cpu," in row for row in rows)  # attempts 1, resumed
+    again = read_frames(stage)["frames"]
+    assert sorted(again) == [0, 1, 2]
+    np.testing.assert_array_equal(again[2]["positions"], first[2]["positions"])

@@ -364,17 +364,19 @@ def run_member(spec: dict) -> dict:
                   "worker": f"{socket.gethostname()}:{os.getpid()}", "device": str(device), "steps": None,
                   "cg_iterations": None, "frames": None}
         undo = spec["before"](spec) if spec.get("before") else None  # a test hook (fault injection)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()  # cpu < wall: other work shared the core
         try:
             run = run_scene(scene, device=device, progress=True, log=log, resume=resume)
         except (SimulationError, SceneError) as err:
             log.write(f"failed: {err}\n")
-            return {**result, "status": "failed", "message": str(err), "wall_seconds": time.perf_counter() - start}
+            return {**result, "status": "failed", "message": str(err), "wall_seconds": time.perf_counter() - start,
+                    "cpu_seconds": time.process_time() - cpu}
         finally:
             if undo:
                 undo()
     st = run.simulation.stats
-    return {**result, "status": "ok", "message": "", "wall_seconds": run.wall_seconds, "steps": st.steps,
+    return {**result, "status": "ok", "message": "", "wall_seconds": run.wall_seconds,
+            "cpu_seconds": time.process_time() - cpu, "steps": st.steps,
             "cg_iterations": st.cg_iterations, "frames": run.frames_written, "device": str(run.simulation.device)}
 
 
@@ -488,7 +490,7 @@ def _gather(client, specs, members, retries, wedge, log) -> list[dict]:
             r = fut.result()
         except Exception as err:  # noqa: BLE001 - out of retries, or its workers kept dying
             r = {"index": m.index, "member": m.name, "status": "error", "message": f"{type(err).__name__}: {err}",
-                 "wall_seconds": None, "steps": None, "cg_iterations": None, "frames": None,
+                 "wall_seconds": None, "cpu_seconds": None, "steps": None, "cg_iterations": None, "frames": None,
                  "attempts": _attempts(Path(m.stage).parent / "member.log", wedge), "resumed": None, "worker": "",
                  "device": ""}
         r["values"] = m.values

@@ -13,7 +13,7 @@ import numpy as np
 
 from .usd_output import read_frames
 
-COLUMNS = ("member", "values", "status", "wall_s", "steps", "cg_iterations", "frames", "attempts", "resumed",
+COLUMNS = ("member", "values", "status", "wall_s", "cpu_s", "steps", "cg_iterations", "frames", "attempts", "resumed",
            "device", "message")
 
 
@@ -34,9 +34,9 @@ def write_reports(result, frame=None, log=None) -> dict:
 
 def _rows(members, results):
     for m, r in zip(members, results):
-        wall = r.get("wall_seconds")
+        wall, cpu = r.get("wall_seconds"), r.get("cpu_seconds")
         yield {"member": m.name, "values": m.label, "status": r["status"],
-               "wall_s": "" if wall is None else f"{wall:.2f}",
+               "wall_s": "" if wall is None else f"{wall:.2f}", "cpu_s": "" if cpu is None else f"{cpu:.2f}",
                "steps": _blank(r.get("steps")), "cg_iterations": _blank(r.get("cg_iterations")),
                "frames": _blank(r.get("frames")), "attempts": _blank(r.get("attempts")),
                "resumed": _blank(r.get("resumed")), "device": r.get("device") or "",

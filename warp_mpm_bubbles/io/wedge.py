@@ -415,7 +415,7 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
         wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"  # tells this run's attempts from earlier ones
         specs = [{"index": m.index, "name": m.name, "scene": m.scene, "source": m.source, "device": device,
                   "before": before_member, "wedge": wedge} for m in members]
-        with _client(workers, scheduler) as client:
+        with dask_client(workers, scheduler) as client:
             if progress:
                 log.write(f"wedge of {len(members)} members to {folder} on {_describe(client)}\n")
             results = _gather(client, specs, members, retries, wedge, log if progress else None)
@@ -434,10 +434,12 @@ def _write_manifest(folder: Path, members):
     os.replace(tmp, folder / "wedge.json")
 
 
-class _client:
-    """A Client for the wedge, and the LocalCluster it started (closed on exit) if any."""
+class dask_client:
+    """A Client for the wedge (or any batch of runs: benchmarks/accuracy_vs_time.py), and the
+    LocalCluster it started, one single-threaded worker process per core (closed on exit).
+    scheduler: None, an address, or a Client (used as is, left open)."""
 
-    def __init__(self, workers, scheduler):
+    def __init__(self, workers=None, scheduler=None):
         self.workers, self.scheduler = workers, scheduler
         self.cluster = self.client = None
 

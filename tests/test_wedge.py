@@ -53,6 +53,8 @@ def test_every_member_is_validated_before_anything_runs(tmp_path):
         plan_wedge(small(tmp_path / "s.usdc"), {"solver.cfl": [0.3, 0.4], "solver.seed": [1]}, out, zip_members=True)
     with pytest.raises(WedgeError, match="sets each member's output path"):
         plan_wedge(small(tmp_path / "s.usdc"), {"output.path": ["a.usdc"]}, out)
+    with pytest.raises(WedgeError, match=r"--frame 4: .* within 0..3"):
+        run_wedge(small(tmp_path / "s.usdc"), {"solver.cfl": [0.4]}, out=out, frame=4)
     assert not out.exists()
 
 

@@ -403,19 +403,23 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
     """
     log = log or sys.stderr
     folder, members = plan_wedge(scene, variations, out, zip_members)
+    last = min(m.scene["output"]["frames"] for m in members)
+    if frame is not None and not 0 <= frame <= last:
+        raise WedgeError(f"--frame {frame}: the contact sheet frame must be within 0..{last} (the members' frames)",
+                         "--frame", frame)
     try:
         import distributed  # noqa: F401
     except ImportError as err:
         raise WedgeError(CLUSTER_HINT, "scheduler", None) from err
     start = time.perf_counter()
     with WedgeLock(folder):
-        for m in members:
-            Path(m.stage).parent.mkdir(parents=True, exist_ok=True)
-        _write_manifest(folder, members)
-        wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"  # tells this run's attempts from earlier ones
-        specs = [{"index": m.index, "name": m.name, "scene": m.scene, "source": m.source, "device": device,
-                  "before": before_member, "wedge": wedge} for m in members]
-        with dask_client(workers, scheduler) as client:
+        with dask_client(workers, scheduler) as client:  # connected before anything is written
+            for m in members:
+                Path(m.stage).parent.mkdir(parents=True, exist_ok=True)
+            _write_manifest(folder, members)
+            wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"  # tells this run's attempts from earlier ones
+            specs = [{"index": m.index, "name": m.name, "scene": m.scene, "source": m.source, "device": device,
+                      "before": before_member, "wedge": wedge} for m in members]
             if progress:
                 log.write(f"wedge of {len(members)} members to {folder} on {_describe(client)}\n")
             results = _gather(client, specs, members, retries, wedge, log if progress else None)

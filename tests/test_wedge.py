@@ -56,6 +56,12 @@ def test_every_member_is_validated_before_anything_runs(tmp_path):
     with pytest.raises(WedgeError, match=r"--frame 4: .* within 0..3"):
         run_wedge(small(tmp_path / "s.usdc"), {"solver.cfl": [0.4]}, out=out, frame=4)
     assert not out.exists()
+    theirs = out / "cfl=0.4" / "s.usdc"  # a file the wedge did not write, where a member would write
+    theirs.parent.mkdir(parents=True)
+    theirs.write_text("not ours")
+    with pytest.raises(WedgeError, match=r"wedge member 0 'cfl=0.4': .* holds files this wedge did not write"):
+        run_wedge(small(tmp_path / "s.usdc"), {"solver.cfl": [0.4]}, out=out)
+    assert theirs.read_text() == "not ours"
 
 
 def test_members_are_the_product_or_the_zip_named_for_their_values(tmp_path):

@@ -28,6 +28,7 @@ Layout of the wedge folder::
 from __future__ import annotations
 
 import copy
+import inspect
 import itertools
 import json
 import os
@@ -49,6 +50,7 @@ except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
 LOCK_NAME = ".wedge.lock"
+MEMBER_MARK = ".wedge-member"  # in each member folder: the wedge made it, its outputs may be replaced
 CLUSTER_HINT = "wedges run on Dask: pip install 'warp-mpm-bubbles[cluster]'"
 
 
@@ -366,7 +368,7 @@ def run_member(spec: dict) -> dict:
         undo = spec["before"](spec) if spec.get("before") else None  # a test hook (fault injection)
         start, cpu = time.perf_counter(), time.process_time()  # cpu < wall: other work shared the core
         try:
-            run = run_scene(scene, device=device, progress=True, log=log, resume=resume)
+            run = run_scene(scene, device=device, progress=True, log=log, resume=resume, **_fresh(run_scene, resume))
         except (SimulationError, SceneError) as err:
             log.write(f"failed: {err}\n")
             return {**result, "status": "failed", "message": str(err), "wall_seconds": time.perf_counter() - start,
@@ -378,6 +380,12 @@ def run_member(spec: dict) -> dict:
     return {**result, "status": "ok", "message": "", "wall_seconds": run.wall_seconds,
             "cpu_seconds": time.process_time() - cpu, "steps": st.steps,
             "cg_iterations": st.cg_iterations, "frames": run.frames_written, "device": str(run.simulation.device)}
+
+
+def _fresh(run_scene, resume) -> dict:
+    """A member folder is the wedge's (MEMBER_MARK): a fresh attempt may replace what a killed one
+    left before its first checkpoint, where run_scene refuses existing outputs (overwrite=)."""
+    return {"overwrite": True} if not resume and "overwrite" in inspect.signature(run_scene).parameters else {}
 
 
 def _attempts(log_path: Path, wedge: str) -> int:
@@ -407,6 +415,7 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
     if frame is not None and not 0 <= frame <= last:
         raise WedgeError(f"--frame {frame}: the contact sheet frame must be within 0..{last} (the members' frames)",
                          "--frame", frame)
+    _refuse_foreign_files(members)
     try:
         import distributed  # noqa: F401
     except ImportError as err:
@@ -414,8 +423,7 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
     start = time.perf_counter()
     with WedgeLock(folder):
         with dask_client(workers, scheduler) as client:  # connected before anything is written
-            for m in members:
-                Path(m.stage).parent.mkdir(parents=True, exist_ok=True)
+            _claim_member_folders(members)
             _write_manifest(folder, members)
             wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"  # tells this run's attempts from earlier ones
             specs = [{"index": m.index, "name": m.name, "scene": m.scene, "source": m.source, "device": device,
@@ -428,6 +436,22 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
 
         result.files = write_reports(result, frame=frame, log=log if progress else None)
     return result
+
+
+def _refuse_foreign_files(members):
+    """A member folder that holds files but no MEMBER_MARK holds someone else's files, which a
+    member run would replace: refuse before anything runs."""
+    for m in members:
+        d = Path(m.stage).parent
+        if d.exists() and any(d.iterdir()) and not (d / MEMBER_MARK).exists():
+            raise WedgeError(f"wedge member {m.index} '{m.name}': {d} holds files this wedge did not write; "
+                             f"move them or choose another --out", "--out", str(d))
+
+
+def _claim_member_folders(members):
+    for m in members:
+        Path(m.stage).parent.mkdir(parents=True, exist_ok=True)
+        (Path(m.stage).parent / MEMBER_MARK).touch()
 
 
 def _write_manifest(folder: Path, members):

@@ -43,19 +43,15 @@ from ..scene.checks import SceneError, _did_you_mean, underive
 from ..scene.model import Scene, load_scene
 from ..scene.quality import GOVERNED
 from .checkpoint import checkpoint_path
+from .wedge_lock import LOCK_NAME, WedgeError, WedgeLock  # noqa: F401 - part of this module's API
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-LOCK_NAME = ".wedge.lock"
 MEMBER_MARK = ".wedge-member"  # in each member folder: the wedge made it, its outputs may be replaced
 CLUSTER_HINT = "wedges run on Dask: pip install 'warp-mpm-bubbles[cluster]'"
-
-
-class WedgeError(SceneError):
-    """A wedge was refused before anything ran (bad --vary, a folder in use)."""
 
 
 @dataclass
@@ -248,78 +244,6 @@ def plan_wedge(scene, variations, out=None, zip_members: bool = False) -> tuple[
             raise WedgeError(f"wedge member {i} '{name}' ({member.label}): {err}", "", None) from None
         members.append(member)
     return folder, members
-
-
-# ---------------------------------------------------------------------------- the lock
-class WedgeLock:
-    """One wedge per folder: an O_CREAT|O_EXCL file holding host and pid. A lock left by a
-    dead process on this host is stale and taken over; any other is refused."""
-
-    def __init__(self, folder):
-        self.folder = Path(folder)
-        self.path = self.folder / LOCK_NAME
-        self.owner = {"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}
-
-    def __enter__(self):
-        self.folder.mkdir(parents=True, exist_ok=True)
-        for _ in range(3):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                holder = self._read()
-                if holder is not None and self._stale(holder) and self._break(holder):
-                    continue
-                who = (f"host {holder.get('host')}, pid {holder.get('pid')}, started "
-                       f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(holder.get('started', 0)))}"
-                       if holder else "an unreadable lock")
-                raise WedgeError(f"{self.folder} is in use by another wedge ({who}); wait for it to finish or "
-                                 f"choose another --out. If no wedge runs there, delete {self.path}.",
-                                 "--out", str(self.folder)) from None
-            with os.fdopen(fd, "w") as f:
-                json.dump(self.owner, f)
-            return self
-        raise WedgeError(f"could not take {self.path}: other processes keep replacing it", "--out", str(self.folder))
-
-    def __exit__(self, *exc):
-        if self._read() == self.owner:
-            self.path.unlink()
-
-    def _read(self):
-        try:
-            return json.loads(self.path.read_text())
-        except (OSError, ValueError):
-            return None
-
-    @staticmethod
-    def _stale(holder) -> bool:
-        if holder.get("host") != socket.gethostname():
-            return False  # cannot see another host's processes: assume it runs
-        try:
-            os.kill(int(holder["pid"]), 0)
-        except ProcessLookupError:
-            return True
-        except (PermissionError, KeyError, ValueError, TypeError):
-            return False
-        return False
-
-    def _break(self, holder) -> bool:
-        """Move the stale lock aside; if a fresh one was moved instead (a race), put it back."""
-        aside = self.path.with_name(f"{LOCK_NAME}.stale.{os.getpid()}")
-        try:
-            os.rename(self.path, aside)
-        except FileNotFoundError:
-            return True
-        try:
-            moved = json.loads(aside.read_text())
-        except (OSError, ValueError):
-            moved = None
-        if moved != holder:
-            try:
-                os.link(aside, self.path)  # no clobber: fails if yet another lock appeared
-            except FileExistsError:
-                pass
-        aside.unlink()
-        return moved == holder
 
 
 # ---------------------------------------------------------------------------- the member task

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .usd_output import read_frames
 
 COLUMNS = ("member", "values", "status", "wall_s", "cpu_s", "steps", "cg_iterations", "frames", "attempts", "resumed",
            "device", "message")
@@ -69,8 +68,8 @@ def write_summary(members, results, folder) -> tuple[Path, Path]:
 
 def contact_sheet(members, results, png_path, frame=None, axes=(0, 1), dpi=100) -> Path:
     """One panel per member: its particles at `frame` (default: each member's last) projected on
-    `axes`, coloured by material, all panels on the same extent; a member without that frame
-    shows its status and message instead."""
+    `axes`, coloured by material (as preview.py), all panels on the same extent; a member without
+    that frame shows its status and message instead."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -97,9 +96,10 @@ def contact_sheet(members, results, png_path, frame=None, axes=(0, 1), dpi=100) 
             ax.text(0.5, 0.5, msg, ha="center", va="center", wrap=True, fontsize=7, transform=ax.transAxes)
         else:
             f, p = shot
+            size = float(np.clip(2e3 / max(len(p["positions"]), 1), 0.5, 8.0))  # few particles: bigger dots
             for mat in np.unique(p["proto_indices"]):  # later materials (gas, foam) on top, larger
                 pts = p["positions"][p["proto_indices"] == mat][:, axes]
-                ax.scatter(pts[:, 0], pts[:, 1], s=1.0 if mat == 0 else 3.0, color=palette[mat % len(palette)],
+                ax.scatter(pts[:, 0], pts[:, 1], s=size * (1 if mat == 0 else 3), color=palette[mat % len(palette)],
                            linewidths=0)
             ax.text(0.02, 0.98, f"frame {f}", fontsize=7, va="top", transform=ax.transAxes)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
@@ -115,14 +115,28 @@ def contact_sheet(members, results, png_path, frame=None, axes=(0, 1), dpi=100) 
 
 
 def _frame_of(member, frame):
-    """(frame number, its arrays) of a member's output, or None if it has no such frame."""
-    if not Path(member.stage).exists():
+    """(frame number, {"positions", "proto_indices"}) of a member's output at `frame` (default its
+    last), or None if it has no such frame. Reads that one frame (one clip layer), where
+    read_frames would load every frame of every member."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    from .usd_output import INSTANCER, POINTS
+
+    path = str(member.stage)
+    if not Path(path).exists():
         return None
-    try:
-        frames = read_frames(member.stage)["frames"]
-    except OSError:
+    cached = Sdf.Layer.Find(path)
+    if cached:
+        cached.Reload()  # as read_frames: the file is replaced on every frame
+    stage = Usd.Stage.Open(path)
+    inst = UsdGeom.PointInstancer.Get(stage, INSTANCER)
+    prim = inst.GetPrim() if inst else UsdGeom.Points.Get(stage, POINTS).GetPrim()
+    names = ("positions", "protoIndices") if inst else ("points", "primvars:materialIndex")
+    if not prim:
         return None
-    if not frames:
+    times = [int(t) for t in prim.GetAttribute(names[0]).GetTimeSamples()]
+    f = (max(times) if times else None) if frame is None else frame
+    if f not in times:
         return None
-    f = max(frames) if frame is None else frame
-    return (f, frames[f]) if f in frames else None
+    return f, {"positions": np.asarray(prim.GetAttribute(names[0]).Get(f)),
+               "proto_indices": np.asarray(prim.GetAttribute(names[1]).Get(f))}

@@ -349,7 +349,7 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
         with dask_client(workers, scheduler) as client:  # connected before anything is written
             _claim_member_folders(members)
             _write_manifest(folder, members)
-            wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"  # tells this run's attempts from earlier ones
+            wedge = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.urandom(3).hex()}"  # tells this run's attempts from earlier ones
             specs = [{"index": m.index, "name": m.name, "scene": m.scene, "source": m.source, "device": device,
                       "before": before_member, "wedge": wedge} for m in members]
             if progress:

@@ -269,7 +269,7 @@ def run_member(spec: dict) -> dict:
     and Dask retries it."""
     import warp as wp
 
-    wp.config.quiet = True  # Warp < 1.10; newer ones read log_level
+    wp.config.quiet = True  # older Warp; 1.19 reads log_level
     wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
     from ..core.simulation import SimulationError
     from .runner import run_scene
@@ -490,6 +490,8 @@ def wedge_command(args) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     failed = [r for r in result.results if r["status"] != "ok"]
+    if not args.quiet and result.files.get("summary_md"):
+        print(Path(result.files["summary_md"]).read_text())
     print(f"{len(result.members) - len(failed)}/{len(result.members)} members finished in "
           f"{result.wall_seconds:.1f} s; summary: {result.files.get('summary_md')}")
     return 1 if failed else 0

@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     md = [f"# Wedge wall time by worker count\n\n{meta['date']}, {meta['cores']} cores; `{meta['command']}`; "
           f"4 members, 2D dam break {args.cells} cells per a, {args.frames} frames.\n",
           "| workers | wall (s) | members summed (s) | members' CPU summed (s) | longest member (s) | load before | "
-          "speed-up |", "|---|---|---|---|---|---|---|"]
+          "speed vs the first row |", "|---|---|---|---|---|---|---|"]
     md += [f"| {r['workers']} | {r['wall_s']:.1f} | {r['member_s_sum']:.1f} | {r['member_cpu_s_sum']:.1f} | {r['member_s_max']:.1f} | "
            f"{r['load_before']:.1f} | {r['speedup_vs_first']:.2f} |" for r in rows]
     (RESULTS / "wedge_workers.md").write_text("\n".join(md) + "\n")

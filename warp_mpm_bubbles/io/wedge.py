@@ -28,6 +28,7 @@ Layout of the wedge folder::
 from __future__ import annotations
 
 import copy
+import importlib.util
 import inspect
 import itertools
 import json
@@ -43,7 +44,7 @@ from ..scene.checks import SceneError, _did_you_mean, underive
 from ..scene.model import Scene, load_scene
 from ..scene.quality import GOVERNED
 from .checkpoint import checkpoint_path
-from .wedge_lock import LOCK_NAME, WedgeError, WedgeLock  # noqa: F401 - part of this module's API
+from .wedge_lock import WedgeError, WedgeLock
 
 try:
     import tomllib
@@ -340,10 +341,8 @@ def run_wedge(scene, variations, *, out=None, zip_members: bool = False, workers
         raise WedgeError(f"--frame {frame}: the contact sheet frame must be within 0..{last} (the members' frames)",
                          "--frame", frame)
     _refuse_foreign_files(members)
-    try:
-        import distributed  # noqa: F401
-    except ImportError as err:
-        raise WedgeError(CLUSTER_HINT, "scheduler", None) from err
+    if importlib.util.find_spec("distributed") is None:
+        raise WedgeError(CLUSTER_HINT, "scheduler", None)
     start = time.perf_counter()
     with WedgeLock(folder):
         with dask_client(workers, scheduler) as client:  # connected before anything is written

@@ -4,6 +4,7 @@
     python benchmarks/accuracy_vs_time.py --quick    # smoke run, into benchmarks/results/accuracy_quick/
     python benchmarks/accuracy_vs_time.py --cases laplace,minnaert --out-dir /tmp/acc
     python benchmarks/accuracy_vs_time.py --only presets   # rerun the quality and seed rows, keep the rest
+    python benchmarks/accuracy_vs_time.py --quick --cases laplace --workers 1,2   # on 1 Dask worker, then 2
 
 Cases (all 2D; the set-ups and error measures of the tests, re-created here so that the tests can
 change without moving this study):
@@ -44,6 +45,12 @@ compiled or loaded before any timed run. wall_s and cpu_s cover only the simulat
 thread; cpu_s (process time) is less disturbed than wall_s when other work shares the cores. Each
 run is timed --repeat times and the fastest kept, except runs longer than --repeat-under seconds,
 timed once (a long run averages contention bursts over its length).
+
+Workers: --workers N runs the distinct runs as Dask tasks (the wedge engine's LocalCluster, one
+single-threaded process per worker; `pip install '.[cluster]'`), each task warming up its case
+first; --workers 1,2 runs them on 1 worker, then on 2, prints both wall times and refuses to
+write if any measurement differs between them (the CPU runs are deterministic). The rows keep the
+first count's per-run timings (on more workers than free cores, runs time each other's load).
 
 Writes <out-dir>/accuracy_vs_time.{csv,md,png} and <out-dir>/presets.md (default out-dir: docs/,
 or benchmarks/results/accuracy_quick/ with --quick).
@@ -415,6 +422,8 @@ def batch_lines(meta) -> list[str]:
                    f"{b['code']}; `{b['command']}` ({meta['mode']} mode; measured {b.get('only', 'everything')}; "
                    f"{b['runs']} runs, {timed}; {b['total_minutes']:.1f} min in all, warm-up and set-up "
                    f"included; summed wall / CPU time {b['contention']:.2f})")
+        if b.get("workers_wall_s"):
+            out[-1] += "; as Dask tasks, " + ", ".join(f"{n} worker(s) {w:.1f} s" for n, w in b["workers_wall_s"].items())
         same = b.get("rerun_same_settings")
         if same and same["rows"]:
             change = same["max_abs_error_change"]
@@ -710,6 +719,107 @@ def describe_code() -> str:
     return head + (f" with uncommitted changes to {', '.join(dirty)}" if dirty else "") if head else "unknown"
 
 
+
+# ------------------------------------------------------------------------------------- runs
+def record(sim, metrics, clock) -> dict:
+    """What the rows keep of one run."""
+    sol = sim.scene.solver
+    return dict(metrics=metrics, wall=clock.wall, cpu=clock.cpu, particles=sim.num_particles,
+                cells=int(np.prod(sim.grid.interior)), steps=sim.stats.steps, dx=sim.grid.dx, refine=sol.refine,
+                cg=sim.stats.cg_iterations / max(sim.stats.cg_solves, 1), ppc=sol.particles_per_cell, cfl=sol.cfl,
+                tol=sol.cg_tolerance, interface=sol.interface, seed=sol.seed, quality=sol.quality, timed=1)
+
+
+def report(i, n, case, over, r, timing=False):
+    first = next(iter(r["metrics"].values()))
+    shown = first["error_signed"] if np.isfinite(first["error_signed"]) else first["measured"]
+    what = "error" if np.isfinite(first["error_signed"]) else "value"
+    desc = " ".join(f"{k}={v}" for k, v in over.items() if not (k == "quality" and v == "production"))
+    print(f"[{'time' if timing else 'run'} {i:3d}/{n}] {case.key:13s} {desc:45s} "
+          f"{r['wall']:7.2f} s {r['steps']:5d} steps  {what} {shown:+.4g}", file=sys.stderr, flush=True)
+
+
+def run_serial(keys, unique, args, tmp) -> dict:
+    """Every distinct run in this process; repeats re-time every run in a later pass (contention
+    bursts differ)."""
+    for k in keys:
+        warm_up(CASES[k], tmp)
+    results = {}
+    for rep in range(args.repeat):
+        for i, (key, (case, over)) in enumerate(unique.items(), 1):
+            if rep and results[key]["wall"] >= args.repeat_under:
+                continue
+            clock = Clock()
+            sim = Simulation(build_scene(case, over, tmp), "cpu")
+            run = record(sim, case.measure(sim, clock), clock)
+            if rep:  # the CPU run is deterministic: a repeat only re-measures the time
+                r = results[key]
+                r["wall"], r["cpu"] = min(r["wall"], clock.wall), min(r["cpu"], clock.cpu)
+                r["timed"] += 1
+            else:
+                results[key] = run
+            report(i, len(unique), case, over, run, timing=bool(rep))
+            del sim
+    return results
+
+
+def measure_task(case_key: str, over: dict, tmp: str, repeat: int, repeat_under: float) -> dict:
+    """One distinct run as a Dask task (in a worker process): warm up, run, re-time."""
+    wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+    case = CASES[case_key]
+    warm_up(case, tmp)  # each worker loads the case's kernels untimed
+    best = None
+    for _ in range(repeat):
+        clock = Clock()
+        sim = Simulation(build_scene(case, over, tmp), "cpu")
+        run = record(sim, case.measure(sim, clock), clock)
+        if best is None:
+            best = run
+        else:
+            best["wall"], best["cpu"] = min(best["wall"], run["wall"]), min(best["cpu"], run["cpu"])
+            best["timed"] += 1
+        if run["wall"] >= repeat_under:
+            break
+    return best
+
+
+def run_on_workers(unique, args, tmp) -> tuple[dict, dict]:
+    """The distinct runs as Dask tasks on a LocalCluster of N single-threaded worker processes
+    (the wedge engine's, warp_mpm_bubbles.io.wedge.dask_client), once per count in --workers. The
+    rows keep the first count's timings; every later count must measure the same values."""
+    from warp_mpm_bubbles.io.wedge import dask_client
+
+    # The task by reference from this file imported as a module (the workers get this folder on
+    # their sys.path), not pickled by value out of __main__ with everything it touches.
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import accuracy_vs_time as study
+
+    counts = [int(w) for w in args.workers.split(",")]
+    by_count, walls = {}, {}
+    for n in counts:
+        start = time.perf_counter()
+        with dask_client(workers=n) as client:
+            futures = client.map(study.measure_task, [case.key for case, _ in unique.values()],
+                                 [over for _, over in unique.values()], tmp=tmp, repeat=args.repeat,
+                                 repeat_under=args.repeat_under, pure=False, retries=1)
+            runs = client.gather(futures)
+        walls[n] = time.perf_counter() - start
+        by_count[n] = dict(zip(unique, runs))
+        for i, (key, (case, over)) in enumerate(unique.items(), 1):
+            report(i, len(unique), case, over, by_count[n][key])
+        print(f"{n} worker(s): {walls[n]:.1f} s for {len(unique)} runs (cluster start and warm-ups included)",
+              file=sys.stderr, flush=True)
+    first = by_count[counts[0]]
+    for n in counts[1:]:
+        for key, r in by_count[n].items():
+            for metric, d in r["metrics"].items():
+                a, b = d["measured"], first[key]["metrics"][metric]["measured"]
+                if not (a == b or (np.isnan(a) and np.isnan(b))):
+                    raise SystemExit(f"{key} {metric}: {a!r} with {n} workers, {b!r} with {counts[0]}")
+        print(f"{n} worker(s): {walls[n]:.1f} s, speed-up {walls[counts[0]] / walls[n]:.2f}x over {counts[0]}; "
+              f"every measurement identical", file=sys.stderr, flush=True)
+    return first, {str(n): round(w, 2) for n, w in walls.items()}
+
 # ------------------------------------------------------------------------------------- main
 SETTINGS = ("resolution", *SWEEPS_FULL)  # the sweeps, in the order the tables list them
 ALIASES = {"presets": ("quality", "seed"), "all": SETTINGS}
@@ -754,6 +864,10 @@ def main(argv=None) -> int:
                     help="time each run this many times and keep the fastest (default 2, or 1 with --quick)")
     ap.add_argument("--repeat-under", type=float, default=60.0,
                     help="time only runs whose first pass took less than this many wall seconds again (default 60)")
+    ap.add_argument("--workers", default=None,
+                    help="run the distinct runs as Dask tasks on N single-threaded worker processes (the wedge "
+                         "engine's LocalCluster; the [cluster] extra); a list such as 1,2 runs them once per count "
+                         "and reports the wall time of each (the rows keep the first count's timings)")
     ap.add_argument("--no-plot", action="store_true", help="skip the PNG (no matplotlib needed)")
     ap.add_argument("--render-only", action="store_true",
                     help="rewrite the CSV, Markdown and plot from <out-dir>/accuracy_vs_time.json without running")
@@ -802,37 +916,11 @@ def main(argv=None) -> int:
     print(f"{len(todo)} points, {len(unique)} distinct runs over {len(keys)} case(s) ({mode} mode"
           f"{', only ' + ', '.join(only) if only else ''})", file=sys.stderr, flush=True)
 
-    results = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for k in keys:
-            warm_up(CASES[k], tmp)
-        for rep in range(args.repeat):  # repeats re-time every run in a later pass: contention bursts differ
-            for i, (key, (case, over)) in enumerate(unique.items(), 1):
-                if rep and results[key]["wall"] >= args.repeat_under:
-                    continue
-                clock = Clock()
-                sim = Simulation(build_scene(case, over, tmp), "cpu")
-                metrics = case.measure(sim, clock)
-                if rep:  # the CPU run is deterministic: a repeat only re-measures the time
-                    r = results[key]
-                    r["wall"], r["cpu"] = min(r["wall"], clock.wall), min(r["cpu"], clock.cpu)
-                    r["timed"] += 1
-                else:
-                    sol = sim.scene.solver
-                    results[key] = dict(metrics=metrics, wall=clock.wall, cpu=clock.cpu, particles=sim.num_particles,
-                                        cells=int(np.prod(sim.grid.interior)), steps=sim.stats.steps,
-                                        dx=sim.grid.dx, refine=sol.refine,
-                                        cg=sim.stats.cg_iterations / max(sim.stats.cg_solves, 1),
-                                        ppc=sol.particles_per_cell, cfl=sol.cfl, tol=sol.cg_tolerance,
-                                        interface=sol.interface, seed=sol.seed, quality=sol.quality, timed=1)
-                first = next(iter(metrics.values()))
-                shown = first["error_signed"] if np.isfinite(first["error_signed"]) else first["measured"]
-                what = "error" if np.isfinite(first["error_signed"]) else "value"
-                desc = " ".join(f"{k}={v}" for k, v in over.items() if not (k == "quality" and v == "production"))
-                print(f"[{'time' if rep else 'run'} {i:3d}/{len(unique)}] {case.key:13s} {desc:45s} "
-                      f"{clock.wall:7.2f} s {sim.stats.steps:5d} steps  {what} {shown:+.4g}",
-                      file=sys.stderr, flush=True)
-                del sim
+        if args.workers:
+            results, batch["workers_wall_s"] = run_on_workers(unique, args, tmp)
+        else:
+            results = run_serial(keys, unique, args, tmp)
 
     # rising bubble: the reference is the finest production run of the study
     for case in (CASES[k] for k in keys if CASES[k].self_referenced):

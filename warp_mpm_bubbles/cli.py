@@ -16,6 +16,7 @@ import traceback
 from .scene.limits import MAX_FRAMES, check_colliders_leave_fluid, check_memory
 from .scene.quality import PRESETS
 from .scene.model import SceneError, load_scene
+from .io.wedge import add_wedge_arguments
 
 DEBUG_ENV = "WARP_MPM_BUBBLES_DEBUG"
 REPORT_TO = "the warp_mpm_bubbles issue tracker (the project's GitHub issues)"
@@ -139,6 +140,8 @@ def main(argv=None) -> int:
     preview_p.add_argument("--frames", default=None, help="comma-separated frame numbers (default: four, spread)")
     preview_p.add_argument("--png", default=None, help="output image (default: next to the stage, .png)")
     _add_blender_parser(sub)
+    wedge_p = sub.add_parser("wedge", help="run variations of a scene (a wedge) as Dask tasks, one output per member")
+    add_wedge_arguments(wedge_p)
     args = parser.parse_args(argv)
     return guarded(lambda: _main(args))
 
@@ -146,6 +149,10 @@ def main(argv=None) -> int:
 def _main(args) -> int:
     if args.command == "blender":
         return _blender(args)
+    if args.command == "wedge":
+        from .io.wedge import wedge_command
+
+        return wedge_command(args)
     if args.command == "preview":
         return _preview(args)
     try:

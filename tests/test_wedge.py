@@ -243,7 +243,8 @@ def nan_after_first_frame(target, spec):
     def save_then_poison(sim, path):
         save(sim, path)
         if sim.frame == 1:
-            sim.v.assign(np.full((sim.v.shape[0], 3), np.nan, np.float32))
+            v = sim.particles.v
+            v.assign(np.full((v.shape[0], 3), np.nan, np.float32))
 
     runner.save_checkpoint = save_then_poison
     return lambda: setattr(runner, "save_checkpoint", save)

@@ -109,6 +109,7 @@ class Simulation:
 
     def _seed(self):
         seeds = seed_particles(self.scene)
+        self.seeded = len(seeds["positions"])  # what the shapes seed, before colliders remove any
         colliders = self.stage("colliders")
         if colliders:  # no particle starts inside a solid
             keep = ~colliders.inside(self, seeds["positions"])

@@ -28,6 +28,8 @@ class FrameTooLongError(SimulationError):
 class NoFluidError(SimulationError):
     """Nothing is left to simulate (colliders cover every seeded particle, and nothing is emitted)."""
 
+    exit_code = 2  # a refusal before any work, like a bad scene
+
 
 def dt_limits(sim) -> dict[str, float]:
     """The simulation's time-step limits in seconds by name ("cfl", "capillary", "viscous", "gas",
@@ -59,8 +61,10 @@ def check_fluid_left(sim):
     """Raise NoFluidError when a simulation starts with no particles and no emitter to bring any:
     call it once after Simulation(...) is built."""
     if sim.num_particles == 0 and not sim.scene.emitters:
-        why = ("the colliders cover every seeded particle; move or shrink the [[colliders]], or move the "
-               "[[shapes]] outside them") if sim.scene.colliders else "the shapes seed no particles"
+        why = "the shapes seed no particles"
+        if sim.scene.colliders:
+            why = (f"the colliders cover all {getattr(sim, 'seeded', 0):,} seeded particles; move or shrink the "
+                   f"[[colliders]], or move the [[shapes]] outside them")
         raise NoFluidError(f"{sim.scene.source}: no fluid to simulate: {why}")
 
 

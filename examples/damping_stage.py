@@ -20,7 +20,7 @@ from typing import ClassVar
 
 import warp as wp
 
-from warp_mpm_bubbles.core.stage import Stage, register_stage
+from warp_mpm_bubbles import Stage, register_stage
 
 
 @dataclass

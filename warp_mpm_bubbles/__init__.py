@@ -17,9 +17,13 @@ Scenes (units: metres, seconds, kilograms, pascals):
     SceneError                                             every refusal: names the key and the fix
 
 Running (these import Warp on first use):
-    run_scene(scene, device=None, progress=True, resume=False)   the frame loop, USD and checkpoints
-    Simulation(scene, device=None)                                the state and the step, for your own loop
-    SimulationError                                               the simulation cannot go on
+    run_scene(scene, device=None, progress=True, resume=False, overwrite=False, on_frame=None)
+                                            the frame loop, USD and checkpoints; on_frame(sim) after each frame
+    Simulation(scene, device=None)          the state and the step, for your own loop
+    SimulationError                         the simulation cannot go on
+
+Extending (docs/new_effect.md):
+    Stage, register_stage                   a stage of your own, run only by scenes that ask for it
 
 docs/api.md walks through the API with examples.
 """
@@ -43,7 +47,8 @@ _LAZY = {name: "warp_mpm_bubbles.scene.effects" for name in (
     "Foam", "SubgridBubbles", "Entrainment", "LiquidInflow", "GasInjector", "Collider")}
 # Warp loads only when the simulator is used, so validating a scene stays instant.
 _LAZY.update(Simulation="warp_mpm_bubbles.core.simulation", SimulationError="warp_mpm_bubbles.core.simulation",
-             run_scene="warp_mpm_bubbles.io.runner", RunResult="warp_mpm_bubbles.io.runner")
+             run_scene="warp_mpm_bubbles.io.runner", RunResult="warp_mpm_bubbles.io.runner",
+             Stage="warp_mpm_bubbles.core.stage", register_stage="warp_mpm_bubbles.core.stage")
 
 __all__ = [
     "Box", "Cylinder", "Domain", "Material", "Output", "Scene", "SceneError", "SolverSettings", "Sphere",

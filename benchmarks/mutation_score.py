@@ -4,6 +4,7 @@ applied to a temporary copy of the repository, and the tests that should notice 
     python benchmarks/mutation_score.py                 # all mutations (slow: an hour or more on 2 cores)
     python benchmarks/mutation_score.py --list          # the mutations, and where each snippet is found
     python benchmarks/mutation_score.py --only gravity_x1.05,theta_half --jobs 2
+    python benchmarks/mutation_score.py --measured      # what the tests measure, to one file
 
 Each mutation is (id, module, old snippet, new snippet, tests). The snippet is searched in every .py
 file of the package, not only in `module` (the file it lived in when written): code moves, and a
@@ -55,6 +56,8 @@ MINNAERT_2D = "tests/test_gas.py::test_bubble_breathes_at_the_2d_minnaert_freque
 TENSION = "tests/test_tension.py"
 VISCOSITY = "tests/test_viscosity.py"
 STEP = "tests/test_time_step.py"
+WS = "tests/test_walls_and_sources.py"
+TANK = WS + "::test_resting_tank_pressure_has_slope_rho_g_and_its_zero_at_the_surface"
 
 # (id, module it lives in today, exact old snippet, new snippet, tests). The issue's table rows are
 # curvature_3d_no_z, divergence_z_x0.95, theta_half, kappa_x0.9, gamma_x1.1, volume_correction_x2,
@@ -98,11 +101,11 @@ MUTATIONS = [
     ("gravity_x0.97", GK, "vel[i, j, k] = mom[i, j, k] / m + dt * accel", "vel[i, j, k] = mom[i, j, k] / m + 0.97 * dt * accel",
      [FREEFALL, LAYERED]),
     ("rho_liquid_x1.03", GK, "if two_phase == 0:  # liquid-only scenes never read the gas arrays\n        rho = ml / vl",
-     "if two_phase == 0:  # liquid-only scenes never read the gas arrays\n        rho = 1.03 * ml / vl", [HYDROSTATIC]),
+     "if two_phase == 0:  # liquid-only scenes never read the gas arrays\n        rho = 1.03 * ml / vl", [HYDROSTATIC, TANK]),
     ("rho_liquid_with_gas_x0.97", GK, "elif vl > 0.0:\n                rho = ml / vl",
      "elif vl > 0.0:\n                rho = 0.97 * ml / vl", [LAYERED]),
     ("free_surface_fraction_shift", GK, "theta = (phi_fluid - 0.5) / (phi_fluid - phi_empty)",
-     "theta = (phi_fluid - 0.4) / (phi_fluid - phi_empty)", [HYDROSTATIC]),
+     "theta = (phi_fluid - 0.4) / (phi_fluid - phi_empty)", [HYDROSTATIC, TANK]),
     ("divergence_z_x0.95", GK, "div += vel_w[i, j, k + 1] - vel_w[i, j, k]",
      "div += 0.95 * (vel_w[i, j, k + 1] - vel_w[i, j, k])", [DIV3D, VOL3D]),
     ("volume_correction_x2", GK, "b += volume_correction * excess / (dt * dt)",
@@ -151,7 +154,7 @@ MUTATIONS = [
     ("foam_lifetime_x1.1", "effects/foam.py", "life[p] = -mean_life * wp.log(1.0 - wp.randf(state))",
      "life[p] = -1.1 * mean_life * wp.log(1.0 - wp.randf(state))", ["tests/test_foam.py"]),
     ("foam_rise_speed_half", "effects/foam.py", "lift = rise_speed * wp.clamp(", "lift = 0.5 * rise_speed * wp.clamp(",
-     ["tests/test_foam.py"]),
+     ["tests/test_foam.py", WS + "::test_foam_under_the_surface_floats_up_at_its_rise_speed"]),
     ("subgrid_buoyancy_x1.1", "effects/subgrid.py", "- dt * (rho_l - rho_g) * vol * gravity",
      "- 1.1 * dt * (rho_l - rho_g) * vol * gravity", ["tests/test_subgrid.py"]),
     ("subgrid_drag_x1.1", "effects/subgrid.py", "return 0.5 * rho_l * cd_s * PI * r * r",
@@ -161,7 +164,7 @@ MUTATIONS = [
     ("stream_speed_x1.1", "effects/emitters.py", "state[i, 0] += e.speed * overlap", "state[i, 0] += 1.1 * e.speed * overlap",
      ["tests/test_emitters.py"]),
     ("air_stone_rate_x1.1", "effects/emitters.py", "state[i, 0] += e.rate * overlap", "state[i, 0] += 1.1 * e.rate * overlap",
-     ["tests/test_emitters.py"]),
+     ["tests/test_emitters.py", WS + "::test_air_stone_count_follows_its_rate_at_every_moment"]),
     ("collider_acceleration_x2", "effects/colliders.py", "s.velocity * tau + 0.5 * tau * tau * s.acceleration",
      "s.velocity * tau + 1.0 * tau * tau * s.acceleration", ["tests/test_colliders.py"]),
     ("collider_face_velocity_x0.9", "effects/colliders.py", "vel[i, j, k] = shape_velocity(shapes[c], t)[axis]",
@@ -281,6 +284,49 @@ def write_results(rows):
     (RESULTS / "mutation_score.md").write_text("\n".join(lines) + "\n")
 
 
+# Tests that print what they measure (issue #17, item 5): --measured collects those lines.
+MEASURED_TESTS = [P3D, GL, EN, "tests/test_runner_output.py", TENSION, VISCOSITY,
+                  "tests/test_foam.py::test_each_foam_particle_lives_its_own_drawn_lifetime",
+                  "tests/test_gas.py::test_rising_bubble_stays_finite_bounded_and_inside",
+                  "tests/test_gas.py::test_rising_bubble_rises"]
+
+
+def parse_captured(output: str) -> dict[str, list[str]]:
+    """pytest -rP's report: '____ test name ____' then '---- Captured stdout call ----' and the lines."""
+    found, name, capturing = {}, None, False
+    for line in output.splitlines():
+        header = re.match(r"^_{3,} (.+?) _{3,}$", line)
+        if header:
+            name, capturing = header.group(1), False
+        elif re.match(r"^-{3,} Captured stdout call -{3,}$", line):
+            capturing = name is not None
+        elif re.match(r"^(-{3,}|={3,}) ", line):
+            capturing = False
+        elif capturing and line.strip():
+            found.setdefault(name, []).append(line.rstrip())
+    return found
+
+
+def collect_measured(tests) -> int:
+    """Run the measuring tests on the unmutated tree and write what they print, one place for the README."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-rP", "-p", "no:cacheprovider", *tests]
+    proc = subprocess.run(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True)
+    found = parse_captured(proc.stdout)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    commit = git_commit()
+    (RESULTS / "measured_values.json").write_text(json.dumps({"commit": commit, "tests": found}, indent=1) + "\n")
+    lines = ["# What the tests measure", "",
+             f"Printed by the tests themselves at commit {commit} "
+             "(`python benchmarks/mutation_score.py --measured`); each test's bound and its reason are beside it "
+             "in the test file.", ""]
+    for name, printed in found.items():
+        lines += [f"- `{name}`"] + [f"  - {p}" for p in printed]
+    (RESULTS / "measured_values.md").write_text("\n".join(lines) + "\n")
+    tail = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else proc.stderr[-300:]
+    print(f"{len(found)} tests printed measurements ({tail}); wrote {RESULTS / 'measured_values.md'}")
+    return proc.returncode
+
+
 def list_mutations(selected):
     bad = 0
     for mid, module, old, _new, tests in selected:
@@ -299,7 +345,11 @@ def main(argv=None):
     ap.add_argument("--list", action="store_true", help="list the mutations and check their snippets; run nothing")
     ap.add_argument("--jobs", type=int, default=1, help="mutants run at once (each a pytest process)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per mutant before it counts as caught")
+    ap.add_argument("--measured", action="store_true",
+                    help="run the measuring tests unmutated and write benchmarks/results/measured_values.{md,json}")
     args = ap.parse_args(argv)
+    if args.measured:
+        return collect_measured(MEASURED_TESTS)
     ids = [m[0] for m in MUTATIONS]
     if len(set(ids)) != len(ids):
         sys.exit("error: duplicate mutation ids in MUTATIONS")

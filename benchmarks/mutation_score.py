@@ -285,10 +285,13 @@ def write_results(rows):
 
 
 # Tests that print what they measure (issue #17, item 5): --measured collects those lines.
-MEASURED_TESTS = [P3D, GL, EN, "tests/test_runner_output.py", TENSION, VISCOSITY,
+MEASURED_TESTS = [P3D, GL, EN, WS, "tests/test_runner_output.py", TENSION, VISCOSITY,
                   "tests/test_foam.py::test_each_foam_particle_lives_its_own_drawn_lifetime",
                   "tests/test_gas.py::test_rising_bubble_stays_finite_bounded_and_inside",
                   "tests/test_gas.py::test_rising_bubble_rises"]
+
+
+WARP_NOISE = re.compile(r"^(Warp \d|Module |\s+(CUDA Toolkit|Devices:|\"cpu\"|Kernel cache:|/))")  # Warp's start-up lines
 
 
 def parse_captured(output: str) -> dict[str, list[str]]:
@@ -302,7 +305,7 @@ def parse_captured(output: str) -> dict[str, list[str]]:
             capturing = name is not None
         elif re.match(r"^(-{3,}|={3,}) ", line):
             capturing = False
-        elif capturing and line.strip():
+        elif capturing and line.strip() and not WARP_NOISE.match(line):
             found.setdefault(name, []).append(line.rstrip())
     return found
 

@@ -5,6 +5,7 @@ applied to a temporary copy of the repository, and the tests that should notice 
     python benchmarks/mutation_score.py --list          # the mutations, and where each snippet is found
     python benchmarks/mutation_score.py --only gravity_x1.05,theta_half --jobs 2
     python benchmarks/mutation_score.py --measured      # what the tests measure, to one file
+    python benchmarks/mutation_score.py --only sigma_x0.97 --tests tests/test_physics_3d.py   # one file's power
 
 Each mutation is (id, module, old snippet, new snippet, tests). The snippet is searched in every .py
 file of the package, not only in `module` (the file it lived in when written): code moves, and a
@@ -348,6 +349,8 @@ def main(argv=None):
     ap.add_argument("--list", action="store_true", help="list the mutations and check their snippets; run nothing")
     ap.add_argument("--jobs", type=int, default=1, help="mutants run at once (each a pytest process)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per mutant before it counts as caught")
+    ap.add_argument("--tests", help="comma-separated tests to run instead of each mutation's own (to show one "
+                    "test's power); printed only, not recorded in the results")
     ap.add_argument("--measured", action="store_true",
                     help="run the measuring tests unmutated and write benchmarks/results/measured_values.{md,json}")
     args = ap.parse_args(argv)
@@ -367,6 +370,9 @@ def main(argv=None):
         return 1 if list_mutations(selected) else 0
     if args.jobs < 1:
         sys.exit("error: --jobs must be >= 1")
+    if args.tests:
+        override = [t.strip() for t in args.tests.split(",") if t.strip()]
+        selected = [(mid, module, old, new, override) for mid, module, old, new, _ in selected]
     commit = git_commit()
     previous = load_previous()
     print(f"{len(selected)} mutations, {args.jobs} at a time, commit {commit}", flush=True)
@@ -378,6 +384,8 @@ def main(argv=None):
 
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         outcomes = list(pool.map(one, selected))
+    if args.tests:
+        return 0  # a power check of chosen tests: not the suite's score
     modules = {m[0]: m[1] for m in MUTATIONS}
     for o in outcomes:
         previous[o.id] = {"id": o.id, "module": modules[o.id], "status": o.status, "seconds": round(o.seconds, 1),

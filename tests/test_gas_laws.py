@@ -65,7 +65,7 @@ def test_gas_compresses_by_its_law_in_each_step(tmp_path, eos):
 OMEGA_ADIABATIC = math.sqrt(2 * GAMMA * P_ATM / (1000.0 * R0**2 * math.log(R_INF / R0)))
 
 
-@pytest.mark.slow  # about 20 s on two loaded cores
+@pytest.mark.slow  # 6 s on an idle machine, over 20 s on two loaded cores
 def test_adiabatic_bubble_breathes_at_the_minnaert_frequency_with_gamma(tmp_path):
     # omega0^2 = 2 gamma p0 / (rho R0^2 ln(Rinf/R0)) (DESIGN §5 with gamma): 211.3 Hz. Measured
     # -0.81% (seeds 1, 2: -1.95%, -1.38%; the isothermal test measures -0.9%), 3 periods, 8 cells

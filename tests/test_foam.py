@@ -102,6 +102,38 @@ def test_foam_counts_follow_the_set_lifetime(layer):
     assert tau_hat == pytest.approx(TAU, rel=4 / math.sqrt(burst.sum())), (tau_hat, burst.sum())
 
 
+@wp.kernel
+def _exponential_draws(seed: int, ids: wp.array(dtype=wp.int64), mean: float, out: wp.array(dtype=float)):
+    p = wp.tid()
+    state = wp.rand_init(seed, int(ids[p]))  # the hash effects/foam.py documents: (scene seed, particle id)
+    out[p] = -mean * wp.log(1.0 - wp.randf(state))
+
+
+def test_each_foam_particle_lives_its_own_drawn_lifetime(layer):
+    # Issue #17: the lifetime statistics above cannot see a 10% error in the mean lifetime (their
+    # bound is 4 standard errors, 12.9%). Each particle's lifetime is a deterministic draw from
+    # (seed, id), so it is checked one by one: a particle born at the end of a step bursts in the
+    # first step that ends at or after birth + L (its clock runs down by dt each step). Measured:
+    # every one of the bursts inside that window (to float32 rounding of the clock); bound: all of
+    # them, with 1e-6 s of slack. The mean lifetime 10% (or 3%) off moves most of them out.
+    sim, birth, death, t = layer["sim"], layer["birth"], layer["death"], layer["t"]
+    n = layer["n"]
+    ids = wp.array(sim.ids.numpy()[:n], dtype=wp.int64, device="cpu")
+    drawn = wp.zeros(n, dtype=float, device="cpu")
+    wp.launch(_exponential_draws, n, inputs=[int(sim.scene.solver.seed) & 0x7FFFFFFF, ids, TAU, drawn], device="cpu")
+    life = drawn.numpy().astype(np.float64)
+    burst = ~np.isnan(death)
+    steps = np.diff(np.concatenate([[0.0], t]))
+    step_of = np.searchsorted(t, death[burst])
+    due = birth[burst] + life[burst]
+    inside = (death[burst] >= due - 1e-6) & (death[burst] - steps[step_of] < due + 1e-6)
+    print(f"foam: {inside.sum()} of {burst.sum()} bursts in the step their drawn lifetime ends")
+    assert burst.sum() > 500
+    assert inside.all(), np.flatnonzero(~inside)[:10]
+    survivors = ~np.isnan(birth) & ~burst
+    assert np.all(birth[survivors] + life[survivors] > t[-1] - 1e-6)  # and none of the living is overdue
+
+
 def test_foam_rides_the_surface(layer):
     # The gas layer started up to 4 cells above the water; foam settles where the interpolated liquid
     # fraction is 1/2 (the fraction taken over non-solid cells, so beside the walls too), the water's

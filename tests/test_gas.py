@@ -101,12 +101,15 @@ def rising(request, tmp_path_factory):
 
 
 def test_rising_bubble_stays_finite_bounded_and_inside(rising):
-    # Speed bound: the free-fall speed over the water's depth, sqrt(2 g 0.14) = 1.66 m/s; a bubble
-    # of 2 cm rises at about 0.2 m/s, its wake a few times that.
+    # Speed bound (issue #17 tightened it from the free-fall speed over the depth, 1.66 m/s): the
+    # fastest particle at 0.1 s, the jet under the rising bubble, measured 0.427 and 0.468 m/s
+    # (sharp, seeds 0 and 1), 0.419 and 0.473 (baseline); bound 0.7 m/s, 1.5 times that.
     end, sim = rising["end"], rising["sim"]
     assert np.isfinite(end["positions"]).all() and np.isfinite(end["velocities"]).all()
     assert (end["positions"] >= 0).all() and (end["positions"] <= np.array(sim.grid.domain_size)).all()
-    assert np.linalg.norm(end["velocities"], axis=1).max() < math.sqrt(2 * 9.81 * 0.14)
+    top = np.linalg.norm(end["velocities"], axis=1).max()
+    print(f"rising bubble ({sim.scene.solver.interface}): fastest particle {top:.3f} m/s")
+    assert top < 0.7
 
 
 def test_rising_bubble_rises(rising):
@@ -114,7 +117,10 @@ def test_rising_bubble_rises(rising):
     y0 = rising["start"]["positions"][is_gas(rising["start"]), 1].mean()
     active = rising["sim"].particles_numpy()
     y1 = active["positions"][is_gas(active), 1].mean()
-    assert y1 > y0 + 0.005  # more than two cells in 0.1 s
+    # Measured 15.9 and 17.6 mm in 0.1 s (sharp, seeds 0 and 1), 16.0 and 17.2 (baseline); bound
+    # 12-22 mm, the seed spread with 25% either side (was: more than 5 mm).
+    print(f"rising bubble: gas centroid rose {1000 * (y1 - y0):.1f} mm in 0.1 s")
+    assert 0.012 < y1 - y0 < 0.022
 
 
 def test_rising_bubble_gas_mass_is_exactly_accounted_for(rising):

@@ -48,11 +48,13 @@ def bubble(tmp_path_factory):
 
 
 def test_drop_pressure_is_laplace(drop):
-    # p_inside = sigma / R in 2D. Measured +1.5% at 8 cells per radius (curvature from the
-    # particles' level set after two binomial passes); 5% bounds it.
+    # p_inside = sigma / R in 2D. Measured +0.50% at 8 cells per radius (seeds 1, 2: -0.03%, -0.99%;
+    # curvature from the particles' level set after two binomial passes); bound 2.5%, the seed
+    # spread with 1.5% margin (was 5%). The 3% sigma errors are caught by tests/test_physics_3d.py.
     sim, r, _ = drop
     inside = sim.pressure_numpy()[:, :, 0][r < R - 2 * sim.grid.dx].mean()
-    assert inside == pytest.approx(SIGMA / R, rel=0.05)
+    print(f"2D drop: p_inside / (sigma/R) = {inside / (SIGMA / R):.4f}")
+    assert inside == pytest.approx(SIGMA / R, rel=0.025)
 
 
 def test_drop_spurious_currents_are_small_and_not_growing(drop):
@@ -65,15 +67,17 @@ def test_drop_spurious_currents_are_small_and_not_growing(drop):
 
 
 def test_bubble_pressure_jump_is_laplace(bubble):
-    # Gas minus liquid = sigma / R0 (measured +3.5%); the liquid disc itself sits at sigma / R_out
-    # (its own surface's jump; measured -4%). Bounds 5% and 10%: the liquid value is a
-    # difference of two jumps carried on the same 8-cell grid.
+    # Gas minus liquid = sigma / R0: measured +4.27% (seeds 1, 2: +3.47%, +4.84%); bound +1.5%..+7%
+    # around it (was +-5%). The liquid disc itself sits at sigma / R_out (its own surface's jump;
+    # measured -3.7%, seeds: -1.6%, -8.0%); bound 10%: a difference of two jumps on the same grid.
     sim, r, _, r_out = bubble
     p = sim.pressure_numpy()[:, :, 0]
     dx = sim.grid.dx
     gas = p[r < R - 2 * dx].mean()
     liquid = p[(r > R + 2 * dx) & (r < r_out - 2 * dx)].mean()
-    assert gas - liquid == pytest.approx(SIGMA / R, rel=0.05)
+    print(f"2D bubble: jump / (sigma/R) = {(gas - liquid) / (SIGMA / R):.4f}, liquid / (sigma/R_out) = "
+          f"{liquid / (SIGMA / r_out):.4f}")
+    assert 1.015 < (gas - liquid) / (SIGMA / R) < 1.07
     assert liquid == pytest.approx(SIGMA / r_out, rel=0.10)
 
 

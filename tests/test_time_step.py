@@ -1,0 +1,42 @@
+"""The time step's limits are the documented formulas exactly (issue #17): CFL with sqrt(|g| dx)
+added to the speed, the capillary limit sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)), and the explicit
+viscous limit dx^2 / (2 dim nu). A limit looser than its formula lets a run go unstable; a stricter
+one only costs time, so each is checked for equality where it is the binding one."""
+
+import math
+
+import pytest
+import warp as wp
+
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene
+from warp_mpm_bubbles.core.simulation import Simulation
+
+wp.config.quiet = True
+
+
+def at_rest(tmp_path, **water):
+    scene = Scene(domain=Domain(size=(0.04, 0.04), cell_size=0.04 / 16),
+                  materials={"water": Material("water", **water)},
+                  shapes=[Box("water", (0.0, 0.0), (0.04, 0.02))],
+                  output=Output(path=str(tmp_path / "s.usdc")))
+    return Simulation(scene, "cpu")
+
+
+def test_cfl_limit_at_rest(tmp_path):
+    sim = at_rest(tmp_path)
+    dx = sim.grid.dx
+    assert sim.stable_dt() == pytest.approx(sim.scene.solver.cfl * dx / math.sqrt(9.81 * dx), rel=1e-9)
+
+
+def test_capillary_limit(tmp_path):
+    sim = at_rest(tmp_path, surface_tension=0.5)  # strong enough that it binds (dt 1.4 ms vs CFL 4 ms)
+    dx = sim.grid.dx
+    limit = math.sqrt(1000.0 * dx**3 / (4 * math.pi * 0.5))
+    assert limit < 0.5 * dx / math.sqrt(9.81 * dx)
+    assert sim.stable_dt() == pytest.approx(limit, rel=1e-9)
+
+
+def test_viscous_limit(tmp_path):
+    sim = at_rest(tmp_path, viscosity=1.0)  # nu = 1e-3 m^2/s: dx^2 / (4 nu) = 1.6 ms, binding
+    dx = sim.grid.dx
+    assert sim.stable_dt() == pytest.approx(dx**2 / (2 * 2 * 1e-3), rel=1e-9)

@@ -138,18 +138,18 @@ MUTATIONS = [
      [DROP3D, BUBBLE3D, TENSION]),
     ("film_retraction_half_speed", TE, "step = wp.min(capillary_speed * dt, 0.25 * dx)",
      "step = wp.min(0.5 * capillary_speed * dt, 0.25 * dx)", [TENSION]),
-    ("film_speed_sigma_x0.95", SIM, "math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx))",
+    ("film_speed_sigma_x0.95", TE, "math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx))",
      "math.sqrt(1.9 * self.sigma / (self.rho_liquid * g.dx))", [BUBBLE3D]),
-    ("capillary_dt_limit_x2", SIM, "(4.0 * math.pi * self.sigma)", "(1.0 * math.pi * self.sigma)", [STEP, TENSION]),
+    ("capillary_dt_limit_x2", TE, "(4.0 * math.pi * self.sigma)", "(1.0 * math.pi * self.sigma)", [STEP, TENSION]),
     # --- viscosity (diffuse_velocity; moving to physics/viscosity.py: found wherever it is)
     ("mu_x0.97", TE, "out[i, j, k] = u + dt * nu * lap / (dx * dx)", "out[i, j, k] = u + 0.97 * dt * nu * lap / (dx * dx)",
      [VISCOSITY]),
     ("mu_x1.03", TE, "out[i, j, k] = u + dt * nu * lap / (dx * dx)", "out[i, j, k] = u + 1.03 * dt * nu * lap / (dx * dx)",
      [VISCOSITY]),
     ("no_slip_mirror_weakened", TE, "lap += -2.0 * u", "lap += -1.0 * u", [VISCOSITY, "tests/test_colliders.py"]),
-    ("viscous_dt_limit_x2", SIM, "self.grid.dx**2 / (2 * self.grid.dim * self.nu_max)",
-     "self.grid.dx**2 / (self.grid.dim * self.nu_max)", [STEP, VISCOSITY]),
-    ("cfl_x2", SIM, "dt = s.cfl * self.grid.dx / speed", "dt = 2.0 * s.cfl * self.grid.dx / speed",
+    ("viscous_dt_limit_x2", "physics/viscosity.py", "sim.grid.dx**2 / (2 * sim.grid.dim * max(",
+     "sim.grid.dx**2 / (sim.grid.dim * max(", [STEP, VISCOSITY]),
+    ("cfl_x2", SIM, '"cfl": s.cfl * self.grid.dx / speed', '"cfl": 2.0 * s.cfl * self.grid.dx / speed',
      [STEP, "tests/test_solver.py::test_time_steps_land_on_frames_and_respect_cfl"]),
     # --- effects
     ("foam_lifetime_x1.1", "effects/foam.py", "life[p] = -mean_life * wp.log(1.0 - wp.randf(state))",
@@ -176,8 +176,8 @@ MUTATIONS = [
     ("usd_extent_without_radius", "io/usd_output.py",
      "lo, hi = pos.min(axis=0) - self.radius, pos.max(axis=0) + self.radius",
      "lo, hi = pos.min(axis=0), pos.max(axis=0)", ["tests/test_usd_output.py"]),
-    ("runner_ids_shifted", "io/runner.py", 'p["velocities"], p["ids"], p["material"], radii)',
-     'p["velocities"], p["ids"] + 1, p["material"], radii)', ["tests/test_runner_output.py"]),
+    ("runner_ids_shifted", "io/runner.py", 'p["velocities"], p["ids"], p["material"], radii,',
+     'p["velocities"], p["ids"] + 1, p["material"], radii,', ["tests/test_runner_output.py"]),
 ]
 
 

@@ -37,11 +37,11 @@ def vortex_dissipation(tmp_path, max_dt, seed=0):
                   materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (L, L))],
                   solver=SolverSettings(max_dt=max_dt, seed=seed), output=Output(path=str(tmp_path / "tg.usdc")))
     sim = Simulation(scene, "cpu")
-    x = sim.x.numpy()
+    x = sim.particles.x.numpy()
     kx, ky = np.pi * x[:, 0] / L, np.pi * x[:, 1] / L
     v = np.zeros_like(x)
     v[:, 0], v[:, 1] = U * np.sin(kx) * np.cos(ky), -U * np.cos(kx) * np.sin(ky)
-    sim.v = wp.array(v.astype(np.float32), dtype=wp.vec3, device=sim.device)
+    sim.particles.v = wp.array(v.astype(np.float32), dtype=wp.vec3, device=sim.device)
     k0, _ = energies(sim)
     sim.advance_to(T_END)
     k1, _ = energies(sim)
@@ -105,18 +105,18 @@ def test_volume_correction_asks_its_share_of_the_overfill(tmp_path):
                   materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (0.1, 0.1))],
                   solver=SolverSettings(volume_correction=0.3), output=Output(path=str(tmp_path / "c.usdc")))
     sim = Simulation(scene, "cpu")
-    x = sim.x.numpy()
+    x = sim.particles.x.numpy()
     x[:, :2] = 0.05 + 0.9 * (x[:, :2] - 0.05)
-    sim.x = wp.array(x, dtype=wp.vec3, device=sim.device)
+    sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
     dt = 1e-3
     sim.step(dt)
     dx = sim.grid.dx
-    u, v = sim.vel[0].numpy(), sim.vel[1].numpy()
+    u, v = sim.fields.vel[0].numpy(), sim.fields.vel[1].numpy()
     div = ((u[1:] - u[:-1]) + (v[:, 1:] - v[:, :-1]))[:, :, 0] / dx
-    phi = sim.liq_volume.numpy()[:, :, 0] / dx**3
+    phi = sim.fields.liq_volume.numpy()[:, :, 0] / dx**3
     deep = np.zeros_like(phi, dtype=bool)
     deep[4:-4, 4:-4] = True  # away from the squeezed block's edge
-    deep &= (sim.types.numpy()[:, :, 0] == FLUID) & (phi > 1.0 + VOLUME_NOISE_BAND + 0.05)
+    deep &= (sim.fields.types.numpy()[:, :, 0] == FLUID) & (phi > 1.0 + VOLUME_NOISE_BAND + 0.05)
     ratio = div[deep] * dt / (phi[deep] - 1.0 - VOLUME_NOISE_BAND)
     print(f"volume correction: div dt / excess over {deep.sum()} cells = {ratio.mean():.4f} "
           f"(min {ratio.min():.4f}, max {ratio.max():.4f}); set 0.3")

@@ -118,7 +118,7 @@ def test_each_foam_particle_lives_its_own_drawn_lifetime(layer):
     # them, with 1e-6 s of slack. The mean lifetime 10% (or 3%) off moves most of them out.
     sim, birth, death, t = layer["sim"], layer["birth"], layer["death"], layer["t"]
     n = layer["n"]
-    ids = wp.array(sim.ids.numpy()[:n], dtype=wp.int64, device="cpu")
+    ids = wp.array(sim.particles.ids.numpy()[:n], dtype=wp.int64, device="cpu")
     drawn = wp.zeros(n, dtype=float, device="cpu")
     wp.launch(_exponential_draws, n, inputs=[int(sim.scene.solver.seed) & 0x7FFFFFFF, ids, TAU, drawn], device="cpu")
     life = drawn.numpy().astype(np.float64)

@@ -48,12 +48,12 @@ def test_gas_compresses_by_its_law_in_each_step(tmp_path, eos):
     measured = []
     for _ in range(3):
         n = sim.num_particles
-        is_gas = sim.phase.numpy()[:n] == 1
-        J = sim.J.numpy()[:n][is_gas].astype(np.float64)
-        vol = sim.vol0.numpy()[:n][is_gas] * J
+        is_gas = sim.particles.phase.numpy()[:n] == 1
+        J = sim.particles.J.numpy()[:n][is_gas].astype(np.float64)
+        vol = sim.particles.vol0.numpy()[:n][is_gas] * J
         p_hat = (vol * P_ATM * (J**-gamma - 1.0)).sum() / vol.sum()  # volume-weighted, as p2g_gas splats it
         sim.step(2e-4)
-        p, vg = sim.pressure.numpy(), sim.gas_volume.numpy()
+        p, vg = sim.fields.pressure.numpy(), sim.fields.gas_volume.numpy()
         p_solved = (p * vg).sum() / vg.sum()
         kappa_eff = -(sim.gas_budget()["volume"] / vol.sum() - 1.0) / (p_solved - p_hat)
         measured.append(kappa_eff * gamma * (P_ATM + p_hat))

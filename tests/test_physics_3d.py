@@ -71,7 +71,7 @@ def test_3d_bubble_jump_is_two_sigma_over_r(tmp_path):
     assert 1.086 < ratios.mean() < 1.132, ratios
     assert shell.mean() == pytest.approx(1.0, abs=0.05), shell
     # gas films retract at the Taylor-Culick speed of a one-cell film, derived once from sigma and rho
-    assert sim.film_speed == pytest.approx(math.sqrt(2 * SIGMA / (1000.0 * sim.grid.dx)), rel=1e-6)
+    assert sim.stage("surface_tension").film_speed == pytest.approx(math.sqrt(2 * SIGMA / (1000.0 * sim.grid.dx)), rel=1e-6)
 
 
 # ---------------------------------------------------- a 3D block collapsing into a corner of its tank
@@ -87,8 +87,8 @@ def block_scene(tmp_path, volume_correction, seed=0):
 
 def divergence_ratio(sim):
     """max |div u| over fluid cells after the projection, relative to max |dw/dz| there."""
-    u, v, w = (a.numpy() for a in sim.vel)
-    fluid = sim.types.numpy() == FLUID
+    u, v, w = (a.numpy() for a in sim.fields.vel)
+    fluid = sim.fields.types.numpy() == FLUID
     div = (u[1:] - u[:-1]) + (v[:, 1:] - v[:, :-1]) + (w[:, :, 1:] - w[:, :, :-1])
     return np.abs(div[fluid]).max() / np.abs(w[:, :, 1:] - w[:, :, :-1])[fluid].max()
 

@@ -76,14 +76,14 @@ def test_foam_under_the_surface_floats_up_at_its_rise_speed(tmp_path):
                   effects={"foam": Foam(rise_speed=0.25, lifetime=100.0)},
                   output=Output(path=str(tmp_path / "f.usdc")))
     sim = Simulation(scene, "cpu")
-    z = float(sim.x.numpy()[0, 2])
+    z = float(sim.particles.x.numpy()[0, 2])
     x = np.array([[0.08 + 0.01 * i, 0.12 - 5 * dx, z] for i in range(5)], np.float32)
     added = sim.add_particles(x, np.zeros_like(x), np.ones(5, np.int32), np.full(5, 1e-9))
-    phase, life = sim.phase.numpy(), sim.foam_life.numpy()
+    phase, life = sim.particles.phase.numpy(), sim.particles.foam_life.numpy()
     phase[added], life[added] = PHASE_FOAM, 100.0
-    sim.phase = wp.array(phase, dtype=wp.int32, device=sim.device)
-    sim.foam_life = wp.array(life, dtype=float, device=sim.device)
+    sim.particles.phase = wp.array(phase, dtype=wp.int32, device=sim.device)
+    sim.particles.foam_life = wp.array(life, dtype=float, device=sim.device)
     sim.advance_to(0.02)
-    speed = (sim.x.numpy()[added, 1] - x[:, 1]).mean() / 0.02
+    speed = (sim.particles.x.numpy()[added, 1] - x[:, 1]).mean() / 0.02
     print(f"foam: rises at {speed:.4f} m/s under the surface (rise_speed 0.25)")
     assert speed == pytest.approx(0.25, rel=0.05)

@@ -76,6 +76,7 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
     """
     log = log or sys.stderr
     start = time.perf_counter()
+    scene = scene.validate()  # the memory estimate reads the filled-in defaults
     out = scene.output
     checkpoint = checkpoint_path(out.path)
     with OutputClaim(out.path, overwrite=overwrite, resume=resume, log=log) as claim:

@@ -29,9 +29,10 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
+from ..scene.model import OUTPUT_FORMATS
 from .ownership import LAYER_KEY, OutputClaim, temp_path
 
-FORMATS = ("instancer", "points", "both")
+FORMATS = OUTPUT_FORMATS  # [output].format: one definition, in the scene's schema
 INSTANCER = "/World/Particles"
 POINTS = "/World/ParticlePoints"
 SURFACE = "/World/LiquidSurface"  # the liquid's surface mesh (io/surface.py), with `surface=True`

@@ -182,6 +182,7 @@ def main(argv=None) -> int:
         ap.error("need --rounds >= 1 and --steps >= 1")
     if args.worker:
         return worker(args.worker, args.steps, args.device)
+    sys.path.insert(0, str(ROOT))  # the package from this checkout, also when it is not installed
 
     runs = {s: {"cold": [], "warm": []} for s in SCENES}
     for r in range(args.rounds):

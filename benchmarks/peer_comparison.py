@@ -24,8 +24,9 @@ Each round runs every code once in its own subprocess, in an order that alternat
 so drifts in machine load hit all alike; --warmup steps (compile or cache load included) are untimed;
 the figure is the median over rounds of particle-steps per second. A separate untimed physics check
 runs each code (taichi once) to the --check-times and compares the block's centroid fall with free
-fall and the particles' volume ratios J: before impact both fall freely; after it the peer's liquid
-compresses (no incompressibility) while ours holds J near 1.
+fall (with each code's own steps), each code's volume measure (the peer: mean J; ours:
+liquid_volume()) and the particles' J: before impact all fall freely; after it the peer's particles
+compress where the block lands (its only resistance is the stiffness E).
 Writes benchmarks/results/peer_comparison[_<device>][_g<N>][_s<S>].{json,md}.
 """
 
@@ -502,6 +503,7 @@ def main(argv=None) -> int:
     args = parse(argv)
     if args.worker:
         return worker(args)
+    sys.path.insert(0, str(ROOT))  # the package from this checkout, also when it is not installed
     from warp_mpm_bubbles.core.seeding import seed_particles
     from warp_mpm_bubbles.core.timing import describe_device
 

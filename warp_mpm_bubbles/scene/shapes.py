@@ -3,15 +3,12 @@ velocities in m/s, pressures in Pa (gauge: above [domain].ambient_pressure)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from .checks import AXES, _Checker, _did_you_mean, _fmt, _g, dim_why
 from .limits import MAX_PRESSURE, MAX_SPEED
-
-if TYPE_CHECKING:
-    from .model import Scene
 
 
 class _Shape:
@@ -28,7 +25,7 @@ class _Shape:
                  if f.name not in ("material", "velocity", "pressure")]
         return f"{self.type_name} " + " ".join(parts)
 
-    def _validate(self, c: _Checker, key, scene: Scene):
+    def _validate(self, c: _Checker, key, scene):  # scene: model.Scene, which imports this module
         dim, mats = scene.dim, scene.materials
         if not isinstance(self.material, str) or self.material not in mats:
             c.fail(f"{key}.material", self.material,

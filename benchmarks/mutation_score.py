@@ -115,8 +115,8 @@ MUTATIONS = [
      "vel[i, j, k] = vel[i, j, k] - 0.97 * dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx", [DIV3D, HYDROSTATIC]),
     # --- interface (sharp liquid-gas faces, Wood mixture)
     ("theta_half", GK, "theta = wp.clamp(psi_l / (psi_l - psi_g), 0.0, 1.0)", "theta = 0.5", [LAYERED]),
-    ("wood_mixture_dropped", GK, "kappa = kappa * vg / (vg + liq_volume[i, j, k])", "kappa = kappa", [KAPPA, MINNAERT_2D]),
-    ("system_kappa_x0.97", GK, "kappa = gas_kv[i, j, k] / vg", "kappa = 0.97 * gas_kv[i, j, k] / vg", [KAPPA, MINNAERT_2D]),
+    ("wood_mixture_dropped", GK, "kappa = kappa * vg / (vg + vl)", "kappa = kappa", [KAPPA, MINNAERT_2D]),
+    ("system_kappa_x0.97", GK, "kappa = kv / vg", "kappa = 0.97 * kv / vg", [KAPPA, MINNAERT_2D]),
     # --- pressure solve
     ("cg_step_x0.97", "core/pressure.py", "x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]",
      "x[i, j, k] = x[i, j, k] + 0.97 * alpha * d[i, j, k]", [HYDROSTATIC, "tests/test_pressure.py"]),

@@ -4,6 +4,25 @@ from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSetting
 
 WATER = {"water": Material("water", density=1000.0)}
 
+# A small 2D tank as a scene file (fill in out and frames with str.format): the CLI tests' scene.
+SMALL_2D = """
+name = "small"
+[domain]
+size = [0.4, 0.2]
+cell_size = 0.0125
+[materials.water]
+density = 1000.0
+[[shapes]]
+type = "box"
+material = "water"
+min = [0.0, 0.0]
+max = [0.1, 0.15]
+[output]
+path = "{out}"
+fps = 60
+frames = {frames}
+"""
+
 
 def tank_2d(width=1.0, height=1.0, depth=0.5, cells=32, ppc=4, out="tank.usdc", **solver):
     """Water at rest, `depth` deep, in a closed free-slip tank."""

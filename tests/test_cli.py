@@ -10,29 +10,12 @@ import time
 import numpy as np
 import pytest
 
+from scenes import SMALL_2D
+
 from warp_mpm_bubbles.cli import main
 from warp_mpm_bubbles.io.usd_output import read_frames
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-
-SMALL_2D = """
-name = "small"
-[domain]
-size = [0.4, 0.2]
-cell_size = 0.0125
-[materials.water]
-density = 1000.0
-[[shapes]]
-type = "box"
-material = "water"
-min = [0.0, 0.0]
-max = [0.1, 0.15]
-[output]
-path = "{out}"
-fps = 60
-frames = {frames}
-"""
-
 
 def small_scene(tmp_path, frames=3, name="small.toml"):
     path = tmp_path / name

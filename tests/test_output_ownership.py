@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pxr import Sdf
 
-from scenes import tank_2d
+from scenes import SMALL_2D, tank_2d
 from warp_mpm_bubbles.cli import main, run_example
 from warp_mpm_bubbles.core.simulation import Simulation, SimulationError
 from warp_mpm_bubbles.io import checkpoint as checkpoint_module
@@ -25,25 +25,6 @@ from warp_mpm_bubbles.io.ownership import (MARKER, ForeignFiles, OutputError, Ou
 from warp_mpm_bubbles.io.usd_output import read_frames
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE_TOML = """
-name = "own"
-[domain]
-size = [0.4, 0.2]
-cell_size = 0.0125
-[materials.water]
-density = 1000.0
-[[shapes]]
-type = "box"
-material = "water"
-min = [0.0, 0.0]
-max = [0.1, 0.15]
-[output]
-path = "{out}"
-fps = 60
-frames = {frames}
-"""
-
-
 def scene(tmp_path, frames=3, name="t.usdc"):
     return tank_2d(cells=16, out=tmp_path / name).replace_output(frames=frames).validate()
 
@@ -90,7 +71,7 @@ def test_a_second_run_is_refused_at_once_naming_the_holder(tmp_path, monkeypatch
 
 def test_a_lock_from_another_host_is_never_taken_over(tmp_path, capsys):
     toml = tmp_path / "own.toml"
-    toml.write_text(SCENE_TOML.format(out=(tmp_path / "o.usdc").as_posix(), frames=2))
+    toml.write_text(SMALL_2D.format(out=(tmp_path / "o.usdc").as_posix(), frames=2))
     lock_path(tmp_path / "o.usdc").write_text(json.dumps(
         {"host": "render-node-7", "pid": 4242, "started": "2026-12-01 20:00:00 UTC", "run_id": "x"}))
     assert main(["run", str(toml), "--quiet"]) == 2
@@ -170,7 +151,7 @@ def test_an_existing_output_is_refused_before_any_work_and_replaced_when_asked(t
 def test_overwrite_on_the_command_line_and_every_example_script(tmp_path, capsys):
     toml = tmp_path / "own.toml"
     out = tmp_path / "cli.usdc"
-    toml.write_text(SCENE_TOML.format(out=out.as_posix(), frames=1))
+    toml.write_text(SMALL_2D.format(out=out.as_posix(), frames=1))
     assert main(["run", str(toml), "--quiet", "--device", "cpu"]) == 0
     assert run_example(toml, "d", ["--quiet", "--device", "cpu"]) == 2  # the examples share the flags
     err = capsys.readouterr().err
@@ -315,7 +296,7 @@ def test_a_usd_write_error_becomes_an_os_error_naming_the_file(tmp_path):
 def test_two_runs_half_a_second_apart_one_completes_the_other_refuses(tmp_path):
     toml = tmp_path / "own.toml"
     out = tmp_path / "race.usdc"
-    toml.write_text(SCENE_TOML.format(out=out.as_posix(), frames=8))
+    toml.write_text(SMALL_2D.format(out=out.as_posix(), frames=8))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     cmd = [sys.executable, "-m", "warp_mpm_bubbles.cli", "run", str(toml), "--quiet", "--device", "cpu"]
     first = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

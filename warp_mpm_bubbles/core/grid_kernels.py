@@ -300,6 +300,53 @@ def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array
         vel[i, j, k] = 0.0
 
 
+@wp.func
+def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i, dim: int,
+                    two_phase: int):
+    """(pinned, enclosed) of fluid cell c: pinned = 1 if a face neighbour is empty (Dirichlet p = 0);
+    enclosed = 1 if every face neighbour is liquid (no surface, wall or gas nearby to lower its
+    rest-volume fraction legitimately)."""
+    pinned = int(0)
+    enclosed = int(1)
+    for a in range(dim):
+        for s in range(2):
+            n = c + (2 * s - 1) * unit(a)
+            t = cell_type_at(types, n)
+            if t == EMPTY:
+                pinned = 1
+            if t != FLUID:
+                enclosed = 0
+            elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
+                enclosed = 0
+    return wp.vec2i(pinned, enclosed)
+
+
+@wp.func
+def cell_compressibility(kv: float, vg: float, vl: float, interface: int):
+    """kappa of a cell holding gas (kv: the gas's volume-weighted kappa, vg, vl: gas and liquid
+    volumes). Baseline: a gas cell is all gas. Sharp: a cell's compressibility is that of its
+    mixture, kappa = alpha_gas kappa_gas (Wood 1930; the liquid's is ~0), so the liquid in a cell
+    the interface crosses is not stretched as if it were gas."""
+    kappa = kv / vg
+    if interface != INTERFACE_BASELINE:
+        kappa = kappa * vg / (vg + vl)
+    return kappa
+
+
+@wp.func
+def volume_excess(vl: float, vg: float, enclosed: int, inv_dx2: float, dx: float):
+    """How far a liquid cell's rest-volume fraction phi = vl/dx^3 is beyond the seeding noise: the
+    over-fill past 1 + band, which the volume correction asks to expand; and where the cell has
+    liquid on every side (enclosed), the under-fill below 1 - band (gas vg counted as filling it),
+    which it asks to contract (near a surface, wall or gas, phi < 1 is legitimate and left alone)."""
+    phi = vl * inv_dx2 / dx
+    excess = wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0)
+    if enclosed == 1:
+        phi += vg * inv_dx2 / dx
+        excess = wp.min(phi - 1.0 + VOLUME_NOISE_BAND, 0.0) + excess
+    return excess
+
+
 @wp.kernel
 def pressure_diagonal_and_rhs(
     types: wp.array3d(dtype=wp.int32),
@@ -348,18 +395,9 @@ def pressure_diagonal_and_rhs(
     inv_dx2 = 1.0 / (dx * dx)
     d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
     div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
-    pinned = int(0)  # an empty neighbour: Dirichlet
-    enclosed = int(1)  # liquid on every side: no surface, wall or gas nearby to lower phi legitimately
-    for a in range(dim):
-        for s in range(2):
-            n = wp.vec3i(i, j, k) + (2 * s - 1) * unit(a)
-            t = cell_type_at(types, n)
-            if t == EMPTY:
-                pinned = 1
-            if t != FLUID:
-                enclosed = 0
-            elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
-                enclosed = 0
+    sides = neighbour_kinds(types, phase, wp.vec3i(i, j, k), dim, two_phase)
+    pinned = sides[0]
+    enclosed = sides[1]
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
@@ -369,25 +407,15 @@ def pressure_diagonal_and_rhs(
     if two_phase != 0:
         vg = gas_volume[i, j, k]
     if vg > 0.0 and (interface != INTERFACE_BASELINE or phase[i, j, k] == PHASE_GAS):
-        # Baseline: a gas cell is all gas. Sharp: a cell's compressibility is that of its mixture,
-        # kappa = alpha_gas kappa_gas (Wood 1930; the liquid's is ~0), so the liquid in a cell the
-        # interface crosses is not stretched as if it were gas.
-        kappa = gas_kv[i, j, k] / vg
-        if interface != INTERFACE_BASELINE:
-            kappa = kappa * vg / (vg + liq_volume[i, j, k])
-        extra = kappa / (dt * dt)
+        extra = cell_compressibility(gas_kv[i, j, k], vg, liq_volume[i, j, k], interface) / (dt * dt)
         b += extra * gas_pv[i, j, k] / vg
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID:
-        phi = liq_volume[i, j, k] * inv_dx2 / dx
-        excess = wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0)
-        if enclosed == 1:
-            # Two-sided inside the liquid: an under-filled cell was stretched and is asked to
-            # contract (near a surface, wall or gas, phi < 1 is legitimate and left alone).
-            if two_phase != 0:
-                phi += gas_volume[i, j, k] * inv_dx2 / dx
-            excess = wp.min(phi - 1.0 + VOLUME_NOISE_BAND, 0.0) + excess
+        gas_here = float(0.0)
+        if two_phase != 0:
+            gas_here = gas_volume[i, j, k]
+        excess = volume_excess(liq_volume[i, j, k], gas_here, enclosed, inv_dx2, dx)
         b += volume_correction * excess / (dt * dt)
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
             target_div[i, j, k] = volume_correction * excess / dt

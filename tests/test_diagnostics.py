@@ -62,3 +62,41 @@ def test_bubble_volumes_counts_separate_bubbles():
     vol = np.full(len(pos), vol[0])
     volumes = bubble_volumes(pos, is_gas, vol, DX, CELLS, 2)
     np.testing.assert_allclose(volumes, [0.64 * DX, 0.04 * DX])  # areas 0.8^2 and 0.2^2, slab DX thick
+
+
+def test_void_cells_are_empty_cells_not_open_to_the_air():
+    from warp_mpm_bubbles.core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
+    from warp_mpm_bubbles.diagnostics import void_cells
+
+    # A closed 2D tank (ghost layer solid), 10 x 10 interior cells, up = +y, water to y = 6.
+    types = np.full((12, 12, 1), SOLID_FREE_SLIP, np.int32)
+    types[1:11, 1:11] = EMPTY
+    types[1:11, 1:7] = FLUID
+    ghost, up = (1, 1, 0), (1, 1)
+    assert void_cells(types, ghost, up) == 0  # the air above the surface is open
+    types[3:5, 2:4] = EMPTY  # a 2 x 2 hole under water
+    types[8, 3] = EMPTY  # one more, apart
+    assert void_cells(types, ghost, up) == 5
+    types[8, 3:7] = EMPTY  # that one now reaches the air above: a dimple, not a void
+    assert void_cells(types, ghost, up) == 4
+    types[1:11, 7:11] = FLUID  # filled tank: every empty cell is a void
+    assert void_cells(types, ghost, up) == 8
+    types[0, 3] = EMPTY  # an opening in the left wall (its ghost cell empty), not yet reached
+    assert void_cells(types, ghost, up) == 8
+    types[1:3, 3] = EMPTY  # a channel from that opening to the 2 x 2 hole: the hole drains to the air
+    assert void_cells(types, ghost, up) == 4  # the column at x = 8 is left
+
+
+def test_a_filled_tank_and_a_free_surface_tank_have_no_voids(tmp_path):
+    import warp as wp
+
+    from scenes import tank_2d
+    from warp_mpm_bubbles.core.simulation import Simulation
+    from warp_mpm_bubbles.diagnostics import void_cells
+
+    wp.config.quiet = True
+    for depth in (0.5, 1.0):
+        sim = Simulation(tank_2d(cells=16, depth=depth, out=tmp_path / "t.usdc"), "cpu")
+        for _ in range(3):
+            sim.step(sim.stable_dt())
+        assert void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up) == 0, depth

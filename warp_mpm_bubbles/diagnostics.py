@@ -83,3 +83,30 @@ def bubble_volumes(positions, is_gas, volumes, dx: float, cells, dim: int) -> np
     keep = is_gas & (particle_label >= 0)  # gas particles in liquid-dominated cells: dispersed, no bubble
     _, inverse = np.unique(particle_label[keep], return_inverse=True)
     return np.sort(np.bincount(inverse, weights=volumes[keep]))[::-1]
+
+
+def void_cells(types, ghost, up) -> int:
+    """Empty cells inside the liquid (issue #12): particle-free cells (grid.EMPTY) whose empty region
+    is not open air. A face-connected empty region is open air when it reaches an open wall (its
+    empty ghost cells) or the domain's top layer (against gravity; without gravity, any side).
+    In a filled tank every empty cell is a void; above a free surface none is.
+
+    types: the cell types of the last step (sim.fields.types.numpy()), ghost: sim.grid.ghost,
+    up: sim.up ((axis, sign); axis -1 without gravity)."""
+    from .core.grid import EMPTY
+
+    types = np.asarray(types)
+    empty = np.argwhere(types == EMPTY)
+    if len(empty) == 0:
+        return 0
+    labels = connected_labels(empty, 3, faces_only=True)
+    shape, ghost = np.array(types.shape), np.array(ghost)
+    in_ghost = ((empty < ghost) | (empty >= shape - ghost)).any(axis=1)
+    axis, sign = up
+    if axis < 0:  # no "up": any side of the domain counts as the outside
+        top = ((empty == ghost) | (empty == shape - ghost - 1)).any(axis=1)
+    else:
+        top_index = shape[axis] - ghost[axis] - 1 if sign > 0 else ghost[axis]
+        top = empty[:, axis] == top_index
+    open_labels = np.unique(labels[in_ghost | top])
+    return int((~np.isin(labels, open_labels) & ~in_ghost).sum())

@@ -275,7 +275,8 @@ class Simulation:
     def dt_limits(self) -> dict[str, float]:
         """Each limit on the next step, in seconds, by name: "cfl" (with sqrt(|g| dx) added to the
         fastest particle, so a fluid at rest still takes safe steps, and the speed emitters and
-        moving colliders bring), each stage's own limit by its name, and "max_dt" if set."""
+        moving colliders bring), each stage's own limit by its `limit` name ("capillary", "viscous"),
+        and "max_dt" if set."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self.gravity))
         t0, t1 = self.time, self.time + self.frame_dt  # steps never span more than a frame
@@ -285,7 +286,7 @@ class Simulation:
         for st in self.stages:
             limit = st.dt_limit(self)
             if limit < math.inf:
-                limits[st.name] = limit
+                limits[st.limit or st.name] = limit
         if s.max_dt is not None:
             limits["max_dt"] = s.max_dt
         return limits

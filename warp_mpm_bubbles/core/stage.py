@@ -8,8 +8,9 @@ A stage is one class in one module that owns all of its physics (docs/design.md,
 - ``Settings``: the dataclass of its ``[effects.NAME]`` table, if it has one (keys and checks).
   Built-in settings sit in `scene/effects.py`, which imports no Warp, so validating a scene
   stays instant; a stage from outside the package keeps its settings in its own module.
-- ``dt_limit(sim)``: its time-step limit in seconds (``inf`` if none); `Simulation.stable_dt` is
-  the minimum over the core CFL limit and every stage's.
+- ``dt_limit(sim)``: its time-step limit in seconds (``inf`` if none), named ``limit`` in
+  `Simulation.dt_limits()` (the name scene/limits.py's step estimate and the step guard's advice
+  use: "capillary", "viscous"); `Simulation.stable_dt` is the minimum of them all.
 - ``incoming_speed(t0, t1)``: a speed it brings before any particle has it (emitters, moving
   colliders), added to the CFL limit.
 - hooks at named points of the step, in this order (each a no-op unless overridden)::
@@ -70,6 +71,7 @@ class Stage:
     name: ClassVar[str] = ""
     Settings: ClassVar[type | None] = None
     timer: ClassVar[str | None] = None  # None: the stage's name
+    limit: ClassVar[str | None] = None  # its dt_limit's name in Simulation.dt_limits(); None: the stage's name
 
     def __init__(self, sim, settings=None):
         self.settings = settings

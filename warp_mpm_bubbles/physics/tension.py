@@ -209,6 +209,7 @@ LEVEL_SET_SMOOTHING = 2  # binomial passes before the curvature (tests/test_tens
 class TensionStage(Stage):
     name = "surface_tension"
     timer = "tension"
+    limit = "capillary"
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)

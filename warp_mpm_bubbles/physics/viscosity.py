@@ -65,6 +65,7 @@ def diffuse_velocity(
 
 class ViscosityStage(Stage):
     name = "viscosity"
+    limit = "viscous"
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)

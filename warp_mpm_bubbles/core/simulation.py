@@ -27,6 +27,7 @@ import warp as wp
 
 from . import grid_kernels as gk
 from .geometry import grid_geometry
+from .host_reads import HostReads
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
@@ -129,6 +130,15 @@ class Simulation:
     def stage(self, name: str) -> Stage | None:
         """The running stage of this effect name, or None: how one stage reaches another."""
         return next((s for s in self.stages if s.name == name), None)
+
+    def read_host(self, array) -> np.ndarray:
+        """The one way the step reads device data on the host (a round trip on a GPU; counted by
+        `count_host_reads`; docs/host_syncs.md lists each and why)."""
+        return array.numpy()
+
+    def count_host_reads(self) -> HostReads:
+        """``with sim.count_host_reads() as reads: sim.step(dt)``: the host reads inside, by module."""
+        return HostReads()
 
     def launch(self, kernel, dim, inputs):
         """Every kernel launch goes through here, so `launches` proves what ran."""

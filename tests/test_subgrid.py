@@ -16,7 +16,8 @@ from warp_mpm_bubbles.core.simulation import Simulation
 wp.config.quiet = True
 L = 0.1
 AIR = 1  # index of "air" in the scenes' materials
-EFFECT_KERNELS = {"deposit_drag_reaction", "advance_subgrid", "trapped_air"}
+EFFECT_KERNELS = {"deposit_drag_reaction", "advance_subgrid", "trapped_air", "seed_total", "place_seeds",
+                  "flag_candidates", "candidate_count", "pack_candidates"}  # conversions select on the device
 
 
 def tank(tmp_path, dim=2, cells=32, depth=0.09, shapes=(), effects=None, **solver):

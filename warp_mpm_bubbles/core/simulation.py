@@ -13,7 +13,8 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid; docs/design.
 
 Each optional stage joins at named hook points (`Stage`): the step below reads as that list.
 The time step is the smallest of the CFL limit and the stages' limits, and lands exactly on frame
-times. Inside a step the host reads only scalars (CG reductions, counters, the fastest particle).
+times. Inside a step the host reads only scalars (CG reductions, the solve's cell counts, one
+read-back at the end); `count_host_reads` counts them, docs/host_syncs.md lists them.
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ class Simulation:
         self.particles = ParticleState(self.device)
         self.fields = GridFields(g, self.device)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device)
+        self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         self._seed()
@@ -203,7 +205,12 @@ class Simulation:
             self._grid_to_particles(dt)
         self._run("after_g2p", dt)  # films, entrainment, sub-grid bubbles, foam, venting
         self._run("end_step", dt)  # colliders push particles out
-        self.max_particle_speed = float(self.fields.max_speed.numpy()[0])  # g2p and the stages that move particles
+        # The step's one read-back: the fastest particle (g2p and the stages that move particles)
+        # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
+        report = self.read_host(self.fields.max_speed)
+        self.max_particle_speed = float(report[0])
+        for read in self.report_readers:
+            read(self, report)
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 
@@ -241,8 +248,8 @@ class Simulation:
 
     def _solve_pressure(self, dt: float):
         g, f, settings = self.grid, self.fields, self.scene.solver
-        n_fluid, n_pinned = (int(c) for c in f.counters.numpy())
-        bad = int(f.nonfinite.numpy()[0])
+        wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
+        n_fluid, n_pinned, bad = (int(c) for c in self.read_host(f.counters))
         if bad:
             raise SimulationError(
                 f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {bad} particles entered p2g with a "

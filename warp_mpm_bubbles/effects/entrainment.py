@@ -6,17 +6,29 @@ neighbours n (u_cn = u_c - u_n, x_cn = x_c - x_n, W = 1 - |x_cn|/2dx): the relat
 converging streams, doubled head-on, zero for flow that translates or separates. Clamped as
 Phi = (min(I, max) - min(I, min)) / (max - min) with min_speed, max_speed; a cell seeds
 rate * Phi * dt bubbles per step (the fraction by a hash of (seed, step, cell)).
+
+No host round trip (docs/host_syncs.md): the seeds are written on the device straight into the
+particle arrays, in cell order (a count per cell, an exclusive scan, then each cell writes its
+own run: the order the host sort used to give, independent of launch order). The host does not
+know how many there are until the step's one read-back (Simulation.step reads the fastest
+particle for the next time step and this count with it); until then the particle count is
+provisional, count + capacity: the unfilled slots are zero, inactive, and every kernel skips them.
+The capacity (checkpointed) doubles after a step that seeds more; that step's excess is appended
+at the read-back, without its first sub-grid move (logged in `overflows`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
 from ..core.geometry import GridGeometry
-from ..core.grid import EMPTY, FLUID, PHASE_LIQUID
+from ..core.grid import EMPTY, FLUID, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.stage import Stage
+from ..core.simulation import GAS_LAW_CODES
 from ..scene.effects import Entrainment
 
 wp.set_module_options({"enable_backward": False})
@@ -41,23 +53,18 @@ def trapped_air(
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
-    geo: GridGeometry,
+    dim: int,
     dt: float,
     min_speed: float,
     max_speed: float,
     rate: float,
     seed: int,
-    capacity: int,
-    count: wp.array(dtype=wp.int32),
-    spawn_key: wp.array(dtype=wp.int64),
-    spawn_x: wp.array(dtype=wp.vec3),
-    spawn_v: wp.array(dtype=wp.vec3),
+    seeds: wp.array(dtype=wp.int32),
 ):
-    """Ihmsen et al.'s trapped-air potential per liquid cell near air; appends the bubbles it seeds."""
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
+    """Ihmsen et al.'s trapped-air potential per liquid cell near air: how many bubbles it seeds."""
     i, j, k = wp.tid()
+    cell = (i * types.shape[1] + j) * types.shape[2] + k
+    seeds[cell] = 0
     c = wp.vec3i(i, j, k)
     if types[i, j, k] != FLUID or phase_cells[i, j, k] != PHASE_LIQUID:
         return
@@ -90,67 +97,164 @@ def trapped_air(
     expected = rate * phi * dt
     if expected <= 0.0:
         return
-    cell = (i * types.shape[1] + j) * types.shape[2] + k
     state = wp.rand_init(seed, cell)
     n = int(wp.floor(expected))
     if wp.randf(state) < expected - float(n):
         n += 1
+    seeds[cell] = n
+
+
+@wp.struct
+class Bubble:
+    """What every entrained bubble starts with (Simulation.add_particles' values for one at ambient)."""
+
+    mass: float
+    vol0: float
+    material: int
+    gas_law: int
+    gas_gamma: float
+
+
+@wp.kernel
+def place_seeds(
+    seeds: wp.array(dtype=wp.int32),
+    first: wp.array(dtype=wp.int32),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    types: wp.array3d(dtype=wp.int32),
+    geo: GridGeometry,
+    seed: int,
+    lo: int,
+    hi: int,
+    base: int,
+    next_id: wp.int64,
+    bubble: Bubble,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    vol0: wp.array(dtype=float),
+    J: wp.array(dtype=float),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    material: wp.array(dtype=wp.int32),
+    gas_law: wp.array(dtype=wp.int32),
+    gas_gamma: wp.array(dtype=float),
+    ids: wp.array(dtype=wp.int64),
+):
+    """Each seeding cell writes its bubbles at base + its run (first: the exclusive scan of seeds),
+    those of its slots in [lo, hi); the draws repeat trapped_air's and go on from there."""
+    i, j, k = wp.tid()
+    cell = (i * types.shape[1] + j) * types.shape[2] + k
+    n = seeds[cell]
     if n == 0:
         return
-    start = wp.atomic_add(count, 0, n)
+    state = wp.rand_init(seed, cell)
+    wp.randf(state)  # trapped_air's draw of the fraction
+    u_c = cell_velocity(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), geo.dim)
     for q in range(n):
-        slot = start + q
-        if slot < capacity:
-            jitter = wp.vec3(wp.randf(state), wp.randf(state), 0.5)
-            if dim == 3:
-                jitter[2] = wp.randf(state)
-            spawn_key[slot] = wp.int64(cell) * wp.int64(1024) + wp.int64(q)  # host sorts: launch order free
-            spawn_x[slot] = origin + (wp.vec3(float(i), float(j), float(k)) + jitter) * dx
-            spawn_v[slot] = u_c
+        jitter = wp.vec3(wp.randf(state), wp.randf(state), 0.5)
+        if geo.dim == 3:
+            jitter[2] = wp.randf(state)
+        slot = first[cell] + q
+        if slot >= lo and slot < hi:
+            p = base + slot
+            x[p] = geo.origin + (wp.vec3(float(i), float(j), float(k)) + jitter) * geo.dx
+            v[p] = u_c
+            mass[p] = bubble.mass
+            vol0[p] = bubble.vol0
+            J[p] = 1.0
+            phase[p] = PHASE_SUBGRID
+            active[p] = 1
+            material[p] = bubble.material
+            gas_law[p] = bubble.gas_law
+            gas_gamma[p] = bubble.gas_gamma
+            ids[p] = next_id + wp.int64(slot)
+
+
+@wp.kernel
+def seed_total(seeds: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32), total: wp.array(dtype=wp.int32),
+               report: wp.array(dtype=float)):
+    """This step's bubbles, for the host's one read-back (report[1], exact below 2^24)."""
+    last = seeds.shape[0] - 1
+    n = first[last] + seeds[last]
+    total[0] = n
+    report[1] = float(n)
 
 
 class EntrainmentStage(Stage):
-    """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them
-    (through that stage's add_bubbles)."""
+    """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them."""
 
     name = "entrainment"
     Settings = Entrainment
 
     def __init__(self, sim, settings):
         super().__init__(sim, settings)
-        self._capacity = 0
+        n_cells = math.prod(sim.grid.cells)
+        self._seeds = wp.zeros(n_cells, dtype=wp.int32, device=sim.device)
+        self._first = wp.zeros(n_cells, dtype=wp.int32, device=sim.device)
+        self._total = wp.zeros(1, dtype=wp.int32, device=sim.device)
+        sim.host_state.setdefault("entrainment_capacity", np.array([256], np.int64))  # slots per step
+        self._pending = None  # (base, capacity, seed) while this step's seeds are provisional
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
+        self.overflows = 0  # steps that seeded more than the capacity (not checkpointed)
+        sim.report_readers.append(self._read_report)
+        self._bubble = None
 
-    def _allocate(self, sim, capacity):
-        dev = sim.device
-        self._capacity = capacity
-        self._count = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._key = wp.zeros(capacity, dtype=wp.int64, device=dev)
-        self._x = wp.zeros(capacity, dtype=wp.vec3, device=dev)
-        self._v = wp.zeros(capacity, dtype=wp.vec3, device=dev)
+    def _bubble_values(self, sim) -> Bubble:
+        """Simulation.add_particles' values for one bubble of bubble_radius at ambient pressure (J0 = 1)."""
+        if self._bubble is None:
+            index = sim.stage("subgrid_bubbles").gas_material
+            m = list(sim.scene.materials.values())[index]
+            volume = 4.0 / 3.0 * math.pi * np.float64(self.settings.bubble_radius) ** 3
+            b = self._bubble = Bubble()
+            b.mass, b.vol0 = float(np.float32(m.density * volume)), float(np.float32(volume))
+            b.material, b.gas_law, b.gas_gamma = index, GAS_LAW_CODES.get(m.eos, 0), float(np.float32(m.gamma))
+        return self._bubble
 
     def after_g2p(self, sim, dt: float):
-        s, g, f = self.settings, sim.grid, sim.fields
+        s, g, f, p = self.settings, sim.grid, sim.fields, sim.particles
         if s.rate == 0.0:
             return
-        if self._capacity == 0:
-            self._allocate(sim, 256)
         # One seed per step (scene seed, step index); the kernel hashes the cell index in.
         seed = (int(sim.scene.solver.seed) * 1_000_003 + (sim.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
-        for _ in range(2):  # a second launch only if the buffer was too small
-            self._count.zero_()
-            sim.launch(trapped_air, g.cells,
-                       [f.types, f.phase_cells, *f.vel, sim.geometry, dt, s.min_speed,
-                        s.max_speed, s.rate, seed, self._capacity, self._count, self._key, self._x, self._v])
-            count = int(self._count.numpy()[0])
-            if count <= self._capacity:
-                break
-            self._allocate(sim, 2 * count)
-        if count == 0:
-            return
-        order = np.argsort(self._key.numpy()[:count], kind="stable")
-        positions = self._x.numpy()[:count][order]
-        velocities = self._v.numpy()[:count][order]
-        bubbles = sim.stage("subgrid_bubbles")
-        bubbles.add_bubbles(sim, positions, np.full(count, s.bubble_radius), velocities, bubbles.gas_material)
-        self.seeded += count
+        sim.launch(trapped_air, g.cells, [f.types, f.phase_cells, *f.vel, g.dim, dt, s.min_speed, s.max_speed, s.rate,
+                                          seed, self._seeds])
+        wp.utils.array_scan(self._seeds, self._first, inclusive=False)
+        sim.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
+        base, capacity = p.count, int(sim.host_state["entrainment_capacity"][0])
+        p.reserve(base + capacity)
+        self._place(sim, seed, 0, capacity, base)
+        p.count = base + capacity  # provisional: the next stages' launches cover the seeds
+        self._pending = (base, capacity, seed)
+
+    def _place(self, sim, seed, lo, hi, base):
+        f, p = sim.fields, sim.particles
+        sim.launch(place_seeds, sim.grid.cells,
+                   [self._seeds, self._first, *f.vel, f.types, sim.geometry, seed, lo, hi, base,
+                    wp.int64(int(sim.host_state["next_id"][0])), self._bubble_values(sim),
+                    p.x, p.v, p.mass, p.vol0, p.J, p.phase, p.active, p.material, p.gas_law, p.gas_gamma, p.ids])
+
+    @property
+    def pending_total(self):
+        """The device count of this step's seeds while the host has not read it, else None."""
+        return self._total if self._pending else None
+
+    def _read_report(self, sim, report):
+        if self._pending:
+            self.settle(sim, int(report[1]))
+
+    def settle(self, sim, total: int):
+        """The read-back gave this step's seed count: the particle count becomes exact."""
+        base, capacity, seed = self._pending
+        self._pending = None
+        p = sim.particles
+        p.count = base + min(total, capacity)
+        if total > capacity:  # rare: the excess joins now; the next steps have room
+            p.reserve(base + total)
+            self._place(sim, seed, capacity, total, base)
+            p.count = base + total
+            sim.host_state["entrainment_capacity"] = np.array([2 * total], np.int64)
+            self.overflows += 1
+        sim.host_state["next_id"] = sim.host_state["next_id"] + total
+        self.seeded += total

@@ -225,6 +225,100 @@ def advance_subgrid(
     wp.atomic_max(max_speed, 0, wp.length(vp))
 
 
+# ------------------------------------------------------------- conversions: the device's part
+CANDIDATE_COLUMNS = 13  # index, phase, x (3), v (3), mass, vol0, J, material, in a fluid cell
+
+
+@wp.func
+def host_cell(x: wp.vec3, origin: wp.vec3d, dx: wp.float64, cells: wp.vec3i, dim: int):
+    """The cell the host's _cells gives x (float64, clamped to the grid; k = 0 in 2D)."""
+    c = wp.vec3i(0, 0, 0)
+    for a in range(dim):
+        q = wp.floor((wp.float64(x[a]) - origin[a]) / dx)
+        c[a] = wp.clamp(int(q), 0, cells[a] - 1)
+    return c
+
+
+@wp.kernel
+def flag_candidates(phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32),
+                    flag: wp.array(dtype=wp.int32)):
+    """1 for the particles a conversion may take: active sub-grid bubbles and resolved gas."""
+    p = wp.tid()
+    flag[p] = 0
+    if active[p] == 1 and (phase[p] == PHASE_SUBGRID or phase[p] == PHASE_GAS):
+        flag[p] = 1
+
+
+@wp.kernel
+def candidate_count(flag: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), last: int,
+                    counts: wp.array(dtype=wp.int32)):
+    counts[0] = slot[last] + flag[last]
+
+
+@wp.kernel
+def pack_candidates(
+    flag: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+    origin: wp.vec3d, dx: wp.float64, cells: wp.vec3i, dim: int,
+    phase: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float), vol0: wp.array(dtype=float), J: wp.array(dtype=float),
+    material: wp.array(dtype=wp.int32), rows: wp.array2d(dtype=wp.float64),
+):
+    """The candidates' rows, in particle order (the scan's): all the host reads of them."""
+    p = wp.tid()
+    if flag[p] == 0:
+        return
+    r = slot[p]
+    c = host_cell(x[p], origin, dx, cells, dim)
+    rows[r, 0] = wp.float64(p)
+    rows[r, 1] = wp.float64(phase[p])
+    for a in range(3):
+        rows[r, 2 + a] = wp.float64(x[p][a])
+        rows[r, 5 + a] = wp.float64(v[p][a])
+    rows[r, 8] = wp.float64(mass[p])
+    rows[r, 9] = wp.float64(vol0[p])
+    rows[r, 10] = wp.float64(J[p])
+    rows[r, 11] = wp.float64(material[p])
+    rows[r, 12] = wp.float64(wp.where(types[c[0], c[1], c[2]] == FLUID, 1, 0))
+
+
+@wp.kernel
+def retire(indices: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32)):
+    active[indices[wp.tid()]] = 0
+
+
+@wp.kernel
+def push_liquid(
+    centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64),
+    reach: wp.array(dtype=wp.float64), n: int, dim: int, lo: wp.float64, hi: wp.vec3d,
+    phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3),
+):
+    """The liquid makes room for each new bubble in turn (from where the previous push left it):
+    r' = (r^d + R^d)^(1/d) within `reach`, in float64, as the host did."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_LIQUID:
+        return
+    xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
+    moved = int(0)
+    for b in range(n):
+        c = centres[b]
+        d = xd - c
+        if dim == 2:
+            d[2] = wp.float64(0.0)
+        r = wp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if r < reach[b] and r > wp.float64(0.0):
+            if dim == 2:
+                scale = wp.sqrt(r * r + radius_pow[b]) / r
+            else:
+                scale = wp.pow(wp.pow(r, wp.float64(3.0)) + radius_pow[b], wp.float64(1.0) / wp.float64(3.0)) / r
+            for a in range(dim):
+                xd[a] = c[a] + d[a] * scale
+            for a in range(3):
+                xd[a] = wp.clamp(xd[a], lo, hi[a])
+            moved = 1
+    if moved == 1:
+        x[p] = wp.vec3(float(xd[0]), float(xd[1]), float(xd[2]))
+
+
 # ------------------------------------------------------------------------------------- host side
 def add_bubbles(sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
     """Append sub-grid bubbles (numpy: positions (n, 3) or (n, dim), radii (n,) current, m;
@@ -288,6 +382,8 @@ class SubgridBubbleStage(Stage):
         sim.particles.add_field("subgrid_impulse", wp.vec3)
         sim.host_state.setdefault("gas_mass_rounding", np.zeros(1))  # kg, see the module docstring
         self.conversions = {"gathered": 0, "shrunk": 0}  # events since start (not checkpointed)
+        self._flag = self._slot = None  # conversions' scratch: candidate flags and their scan
+        self._counts = wp.zeros(2, dtype=wp.int32, device=sim.device)  # candidates, entrainment's pending seeds
 
     def add_bubbles(self, sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
         return add_bubbles(sim, positions, radii, velocities, material_index, gauge_pressure)
@@ -309,35 +405,63 @@ class SubgridBubbleStage(Stage):
     # ------------------------------------------------------------------ conversions (host)
     def convert(self, sim):
         """Both conversions from one snapshot: gathered sub-grid bubbles become resolved gas,
-        small resolved clusters become sub-grid bubbles (see the module docstring)."""
-        n = sim.particles.count
-        if n == 0:
+        small resolved clusters become sub-grid bubbles (see the module docstring). The device
+        selects the candidates (sub-grid bubbles and resolved gas, in particle order); the host
+        reads their count (with entrainment's pending one: a single read) and then their rows,
+        never the full particle arrays, and writes back only what changes."""
+        p = sim.particles
+        counts = self._candidates(sim)
+        entrainment = sim.stage("entrainment")
+        if entrainment is not None and entrainment.pending_total is not None:
+            wp.copy(counts, entrainment.pending_total, dest_offset=1, count=1)
+        n_candidates, entrained = (int(c) for c in sim.read_host(counts))
+        if entrainment is not None and entrainment.pending_total is not None:
+            entrainment.settle(sim, entrained)  # the count is exact before anything is appended
+        if n_candidates == 0:
             return
-        phase, active = sim.particles.phase.numpy()[:n].copy(), sim.particles.active.numpy()[:n].copy()
-        sub = np.flatnonzero((phase == PHASE_SUBGRID) & (active == 1))
-        gas = np.flatnonzero((phase == PHASE_GAS) & (active == 1))
-        if len(sub) == 0 and len(gas) == 0:
-            return
-        snap = {name: sim.particles.numpy(name).copy() for name in ("x", "v", "mass", "vol0", "J", "material")}
-        groups_up = self._gathered(sim, snap, sub)
-        groups_down = self._small_clusters(sim, snap, gas)
+        g = sim.grid
+        rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=sim.device)
+        sim.launch(pack_candidates, self._n,
+                   [self._flag, self._slot, sim.fields.types, wp.vec3d(*g.origin), wp.float64(g.dx),
+                    wp.vec3i(*g.cells), g.dim, p.phase, p.x, p.v, p.mass, p.vol0, p.J, p.material, rows])
+        rows = sim.read_host(rows)
+        index, phase = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int32)
+        snap = {"x": rows[:, 2:5], "v": rows[:, 5:8], "mass": rows[:, 8], "vol0": rows[:, 9], "J": rows[:, 10],
+                "material": rows[:, 11].astype(np.int32), "in_fluid": rows[:, 12] == 1.0}
+        groups_up = self._gathered(sim, snap, np.flatnonzero(phase == PHASE_SUBGRID))
+        groups_down = self._small_clusters(sim, snap, np.flatnonzero(phase == PHASE_GAS))
         if not groups_up and not groups_down:
             return
-        retired = np.concatenate(groups_up + groups_down)
-        active[retired] = 0
-        sim.particles.active[:n].assign(active)
-        # The liquid's positions as the pushes leave them: each new bubble pushes from where the
-        # previous one left the water (from the snapshot, a second push would undo the first).
-        liquid_x = snap["x"].astype(np.float64)
-        liquid = np.flatnonzero((phase == PHASE_LIQUID) & (active == 1))
-        for members in groups_up:
-            self._to_resolved(sim, snap, members, liquid_x, liquid)
-        if groups_up:
-            sim.particles.x[:n].assign(liquid_x.astype(np.float32))
+        retired = index[np.concatenate(groups_up + groups_down)].astype(np.int32)
+        sim.launch(retire, len(retired), [wp.array(retired, dtype=wp.int32, device=sim.device), p.active])
+        # The liquid makes room on the device, each new bubble from where the previous one left it.
+        pushes = [self._to_resolved(sim, snap, members) for members in groups_up]
+        if pushes:
+            centres, radius_pow, reach = (np.array(col, np.float64) for col in zip(*pushes))
+            size = np.asarray(g.domain_size, np.float64)
+            dev = lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
+            sim.launch(push_liquid, self._n,
+                       [dev(centres, wp.vec3d), dev(radius_pow, wp.float64), dev(reach, wp.float64), len(pushes), g.dim,
+                        wp.float64(1e-4 * g.dx), wp.vec3d(*(size - 1e-4 * g.dx)), p.phase, p.active, p.x])
         for members in groups_down:
             self._to_subgrid(sim, snap, members)
         self.conversions["gathered"] += len(groups_up)
         self.conversions["shrunk"] += len(groups_down)
+
+    def _candidates(self, sim):
+        """Flag and scan the candidates on the device; returns the (device) counts array."""
+        n = self._n = sim.particles.count
+        if self._flag is None or self._flag.shape[0] < n:  # scratch grows like the particle arrays
+            self._flag = wp.zeros(max(n, 2 * (0 if self._flag is None else self._flag.shape[0])), dtype=wp.int32,
+                                  device=sim.device)
+            self._slot = wp.zeros_like(self._flag)
+        self._counts.zero_()
+        if n:
+            p = sim.particles
+            sim.launch(flag_candidates, n, [p.phase, p.active, self._flag])
+            wp.utils.array_scan(self._flag[:n], self._slot[:n], inclusive=False)
+            sim.launch(candidate_count, 1, [self._flag, self._slot, n - 1, self._counts])
+        return self._counts
 
     def _cells(self, sim, x):
         g = sim.grid
@@ -384,8 +508,8 @@ class SubgridBubbleStage(Stage):
         label = connected_labels(occupied, sim.grid.dim)[row]
         volume = snap["vol0"][gas].astype(np.float64) * snap["J"][gas]
         per_label = np.bincount(label, weights=volume)
-        types = sim.fields.types.numpy()[(*cells.T,) + ((0,) if sim.grid.dim == 2 else ())]
-        in_air = np.bincount(label, weights=(types != FLUID).astype(np.float64), minlength=len(per_label)) > 0
+        outside = (~snap["in_fluid"][gas]).astype(np.float64)  # not in a fluid cell (the device looked)
+        in_air = np.bincount(label, weights=outside, minlength=len(per_label)) > 0
         small = np.flatnonzero((per_label > 0) & ~in_air
                                & (per_label < self.settings.shrink_ratio * self.threshold_volume))
         return [gas[label == lab] for lab in small]
@@ -394,9 +518,9 @@ class SubgridBubbleStage(Stage):
         sim.host_state["gas_mass_rounding"] = sim.host_state["gas_mass_rounding"] + (
             exact - stored.astype(np.float64).sum())
 
-    def _to_resolved(self, sim, snap, members, liquid_x, liquid):
-        """Fill the merged volume with gas particles at the seeding spacing; the liquid (rows
-        `liquid` of the host positions liquid_x, updated in place) makes room."""
+    def _to_resolved(self, sim, snap, members):
+        """Fill the merged volume with gas particles at the seeding spacing; returns the liquid's
+        push (centre, R^dim, reach) for push_liquid."""
         g = sim.grid
         mass = snap["mass"][members].astype(np.float64)
         rest = snap["vol0"][members].astype(np.float64)
@@ -419,14 +543,7 @@ class SubgridBubbleStage(Stage):
         self._book_rounding(sim, total_mass, each)
         # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
         radius = (sphere_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
-        x = liquid_x[liquid]
-        d = x[:, : g.dim] - centre[: g.dim]
-        r = np.linalg.norm(d, axis=1)
-        near = (r < PUSH_REACH * radius) & (r > 0.0)
-        if near.any():
-            scale = (r[near] ** g.dim + radius**g.dim) ** (1.0 / g.dim) / r[near]
-            x[near, : g.dim] = centre[: g.dim] + d[near] * scale[:, None]
-            liquid_x[liquid[near]] = np.clip(x[near], 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
+        return centre, radius**g.dim, PUSH_REACH * radius
 
     def _to_subgrid(self, sim, snap, members):
         mass = snap["mass"][members].astype(np.float64)

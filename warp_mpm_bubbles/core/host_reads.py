@@ -32,10 +32,12 @@ def _caller() -> tuple[str, str]:
 
 class HostReads:
     """``with HostReads() as reads: ...`` then ``reads.by_module`` ({"core.simulation": 2, ...}),
-    ``reads.by_function`` ({("effects.subgrid", "convert"): 1, ...}) and ``reads.total``."""
+    ``reads.by_function`` ({("effects.subgrid", "convert"): 1, ...}), ``reads.total``, and
+    ``reads.elements`` (array elements read, by module: what a read carries)."""
 
     def __init__(self):
         self.by_function: Counter[tuple[str, str]] = Counter()
+        self.elements: Counter[str] = Counter()
         self._saved = {}
 
     @property
@@ -49,24 +51,26 @@ class HostReads:
     def total(self) -> int:
         return sum(self.by_function.values())
 
-    def _count(self):
-        self.by_function[_caller()] += 1
+    def _count(self, size: int = 0):
+        where = _caller()
+        self.by_function[where] += 1
+        self.elements[where[0]] += size
 
     def __enter__(self):
         array = wp.array  # the class: patched for every instance
         numpy, to_list = array.numpy, array.list
         reads = self
 
-        def counted_numpy(arr):
+        def counted_numpy(arr, *args, **kwargs):
             if not reads._in_list:
-                reads._count()
-            return numpy(arr)
+                reads._count(arr.size)
+            return numpy(arr, *args, **kwargs)
 
-        def counted_list(arr):
-            reads._count()
+        def counted_list(arr, *args, **kwargs):
+            reads._count(arr.size)
             reads._in_list = True  # list() reads through numpy(): one read, not two
             try:
-                return to_list(arr)
+                return to_list(arr, *args, **kwargs)
             finally:
                 reads._in_list = False
 

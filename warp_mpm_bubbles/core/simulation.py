@@ -42,6 +42,9 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 # Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
 TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
+# Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
+# only per-step argument (colliders pass the time: not these; unknown stages: not these).
+GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
 
 
 @dataclass
@@ -92,6 +95,8 @@ class Simulation:
         self.fields = GridFields(g, self.device)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device)
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
+        self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
+        self._capturing = False
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         self._seed()
@@ -178,7 +183,7 @@ class Simulation:
 
     def _run(self, hook: str, dt: float):
         for s in self._hooks[hook]:
-            if hook in TIMED_HOOKS:
+            if hook in TIMED_HOOKS and not self._capturing:  # the timer synchronizes: not in a capture
                 with self.timer(s.timer_name):
                     getattr(s, hook)(self, dt)
             else:
@@ -205,6 +210,9 @@ class Simulation:
             self._grid_to_particles(dt)
         self._run("after_g2p", dt)  # films, entrainment, sub-grid bubbles, foam, venting
         self._run("end_step", dt)  # colliders push particles out
+        self._end_step(dt)
+
+    def _end_step(self, dt: float):
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)
         # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
         report = self.read_host(self.fields.max_speed)
@@ -213,6 +221,53 @@ class Simulation:
             read(self, report)
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
+
+    def step_graph(self, dt: float):
+        """step(dt), with its two device-only stretches (p2g .. the pressure system, and extend ..
+        g2p) captured as CUDA graphs (wp.ScopedCapture) and replayed while nothing they bake in
+        changes; the solve, the host stages and the read-back run as in step(). On the CPU, or with
+        a stage outside GRAPH_STAGES, it is step(dt). UNTESTED on a GPU (none where it was written;
+        docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
+        if not self.device.is_cuda or any(s.name not in GRAPH_STAGES for s in self.stages):
+            return self.step(dt)
+        f = self.fields
+        self._run("begin_step", dt)
+        with self.timer("graph: p2g .. system"):
+            self._replay("pre", dt, lambda: (self.particles_to_grid(), self._run("after_p2g", dt),
+                                             self._grid_velocity_and_cells(dt), self._run("force", dt),
+                                             self._assemble_pressure_system(dt)))
+        with self.timer("pressure"):
+            self._solve_pressure(dt)
+        with self.timer("graph: extend .. g2p"):
+            self._replay("post", dt, lambda: (self._run("before_extend", dt), self.extend(f.vel, f.valid),
+                                              self._run("before_g2p", dt), self._grid_to_particles(dt)))
+        self._run("after_g2p", dt)
+        self._run("end_step", dt)
+        self._end_step(dt)
+
+    def _replay(self, name: str, dt: float, stretch):
+        """Capture `stretch` once per (dt, particle arrays, face arrays) and launch the graph; the
+        face lists the stretch swaps (viscosity, extend) are set as the capture left them."""
+        f, p = self.fields, self.particles
+        lists = [a for a in (f.vel, f.vel_tmp, f.valid, f.valid_tmp, f.gas_vel, f.gas_valid) if a is not None]
+        key = (name, dt, p.count, p.x.ptr, tuple(a.ptr for arrays in lists for a in arrays))
+        if key not in self._graphs:
+            if len(self._graphs) >= 8:  # dt changes: keep only recent graphs
+                self._graphs.clear()
+            before = Counter(self.launches)
+            self._capturing = True
+            try:
+                with wp.ScopedCapture(device=self.device) as capture:
+                    stretch()
+            finally:
+                self._capturing = False
+            self._graphs[key] = (capture.graph, self.launches - before, [list(a) for a in lists])
+            self.launches = before
+        graph, launches, after = self._graphs[key]
+        wp.capture_launch(graph)
+        self.launches.update(launches)
+        for arrays, state in zip(lists, after):
+            arrays[:] = state
 
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""

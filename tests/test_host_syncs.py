@@ -1,0 +1,147 @@
+"""Host round trips inside a step (issue #13, item 4; docs/host_syncs.md), counted on the CPU
+device: there a read costs nothing, but each is what a GPU would wait for."""
+
+import numpy as np
+import warp as wp
+
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles.core.host_reads import HostReads
+from warp_mpm_bubbles.core.grid import PHASE_GAS, PHASE_SUBGRID
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
+from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
+
+from test_subgrid import splash_scene
+
+wp.config.quiet = True
+SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
+# The step's own reads: the solve's cell counts with the non-finite count (3 ints), and the
+# read-back at its end, the fastest particle with entrainment's count (2 floats).
+STEP_READS, STEP_ELEMENTS = 2, 5
+
+
+def liquid_scene(tmp_path):
+    return Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24), materials={"water": Material("water")},
+                 shapes=[Box("water", (0.0, 0.0), (0.05, 0.07))], solver=SolverSettings(particles_per_cell=4),
+                 output=Output(path=str(tmp_path / "l.usdc")))
+
+
+def full_scene(tmp_path):
+    """All eight optional stages (benchmarks/compile_time.py's scene, smaller); conversions every 2 steps."""
+    return Scene(
+        domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24),
+        materials={"water": Material("water", surface_tension=0.072, viscosity=1.0e-3),
+                   "air": Material("air", kind="gas", viscosity=1.8e-5)},
+        shapes=[Box("water", (0.0, 0.0), (0.1, 0.05)), Sphere("air", center=(0.03, 0.02), radius=0.01),
+                Box("water", (0.06, 0.06), (0.08, 0.08), velocity=(0.0, -2.0))],
+        effects={"foam": Foam(), "subgrid_bubbles": SubgridBubbles(convert_every=2),
+                 "entrainment": Entrainment(rate=1000.0, min_speed=0.5)},
+        emitters=[LiquidInflow("water", center=(0.02, 0.09), direction=(0.0, -1.0), radius=0.005, speed=1.0),
+                  GasInjector("air", center=(0.08, 0.01), rate=200.0, radius=0.002, spread=0.005)],
+        colliders=[Collider("sphere", center=(0.05, 0.085), radius=0.006, velocity=(0.0, -0.5), stop=0.02)],
+        solver=SolverSettings(particles_per_cell=4), output=Output(path=str(tmp_path / "f.usdc")),
+    )
+
+
+def counted_steps(sim, steps):
+    """One advance_to per step (stable_dt included): yields its host reads and CG iterations and solves."""
+    for _ in range(steps):
+        iterations, solves = sim.stats.cg_iterations, sim.stats.cg_solves
+        with sim.count_host_reads() as reads:
+            sim.advance_to(sim.time + sim.stable_dt() * 0.9999)
+        yield reads, sim.stats.cg_iterations - iterations, sim.stats.cg_solves - solves
+
+
+def assert_solver_within_bound(reads, iterations, solves):
+    # Today's PCG reads two sums per iteration and one per V-cycle, six more per solve: the
+    # bound holds as the convergence work lowers it.
+    assert 0 < sum(reads.by_module[m] for m in SOLVER_MODULES) <= 3 * iterations + 6 * solves
+
+
+def test_liquid_only_step_reads_two_small_arrays_besides_the_solver(tmp_path):
+    sim = Simulation(liquid_scene(tmp_path), "cpu")
+    for reads, iterations, solves in counted_steps(sim, 6):
+        assert solves == 1
+        other = {m: n for m, n in reads.by_module.items() if m not in SOLVER_MODULES}
+        assert other == {"core.simulation": STEP_READS}
+        assert reads.elements["core.simulation"] == STEP_ELEMENTS
+        assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} == {
+            ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step")}
+        assert_solver_within_bound(reads, iterations, solves)
+
+
+def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tmp_path):
+    sim = Simulation(full_scene(tmp_path), "cpu")
+    assert set(sim.effects) == {"gas", "colliders", "viscosity", "surface_tension", "emitters", "foam",
+                                "subgrid_bubbles", "entrainment"}
+    convert_steps = 0
+    for reads, iterations, solves in counted_steps(sim, 16):
+        modules = dict(reads.by_module)
+        # Entrainment, emitters, colliders, foam, gas, tension, viscosity: no read at all.
+        assert set(modules) <= {"core.simulation", "effects.subgrid", *SOLVER_MODULES}, modules
+        assert modules["core.simulation"] == STEP_READS and reads.elements["core.simulation"] == STEP_ELEMENTS
+        assert_solver_within_bound(reads, iterations, solves)
+        if sim.stats.steps % 2:
+            assert "effects.subgrid" not in modules
+            continue
+        # A conversion step: the candidates' count (with entrainment's), then their rows only.
+        convert_steps += 1
+        n = sim.num_particles
+        phase, active = sim.particles.numpy("phase"), sim.particles.numpy("active") == 1
+        candidates = int((((phase == PHASE_GAS) | (phase == PHASE_SUBGRID)) & active).sum())
+        assert modules["effects.subgrid"] == 2
+        rows = (reads.elements["effects.subgrid"] - 2) / CANDIDATE_COLUMNS
+        assert rows == int(rows) and 0.5 * candidates <= rows <= 2 * candidates < 0.5 * n, (rows, candidates, n)
+    assert convert_steps == 8
+    assert sim.stage("entrainment").seeded > 0  # it had work, with no read of its own
+    assert sim.launches["trapped_air"] == sim.stats.steps
+
+
+def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_path):
+    sims = [Simulation(splash_scene(tmp_path), "cpu") for _ in range(2)]
+    roomy, tight = sims
+    tight.host_state["entrainment_capacity"][:] = 1  # one slot: the first step seeding two overflows
+    new = 0
+    while new < 2:  # in lock step: identical until that step
+        n0, seeded0 = roomy.num_particles, roomy.stage("entrainment").seeded
+        for sim in sims:
+            sim.advance_to(sim.time + sim.stable_dt() * 0.9999)
+        new = roomy.stage("entrainment").seeded - seeded0
+        assert tight.stage("entrainment").seeded == roomy.stage("entrainment").seeded
+    assert tight.stage("entrainment").overflows == 1 and roomy.stage("entrainment").overflows == 0
+    assert tight.host_state["entrainment_capacity"][0] == 2 * new
+    for sim in sims:
+        p = sim.particles
+        assert sim.num_particles == n0 + new and sim.host_state["next_id"][0] == n0 + new
+        assert np.array_equal(p.numpy("ids")[n0:], np.arange(n0, n0 + new))
+        assert (p.numpy("phase")[n0:] == PHASE_SUBGRID).all() and (p.numpy("active")[n0:] == 1).all()
+        # Beyond the count the arrays stay zero: the provisional slots were never written.
+        assert not p.active.numpy()[sim.num_particles:].any() and not p.x.numpy()[sim.num_particles:].any()
+    # The seed within the capacity moved in its step; the excess joined after the move.
+    x_tight, x_roomy = tight.particles.numpy("x"), roomy.particles.numpy("x")
+    assert np.array_equal(x_tight[: n0 + 1], x_roomy[: n0 + 1])
+    assert not np.array_equal(x_tight[n0 + 1:], x_roomy[n0 + 1:])
+
+
+def test_host_read_counter_attributes_reads_and_patches_nothing_outside(tmp_path):
+    numpy, sync = wp.array.numpy, wp.synchronize
+    a = wp.zeros(7, dtype=float, device="cpu")
+    with HostReads() as reads:
+        a.numpy()
+        a.list()  # one read, not two (list reads through numpy)
+        wp.synchronize()
+    assert reads.by_function == {(__name__, "test_host_read_counter_attributes_reads_and_patches_nothing_outside"): 3}
+    assert reads.elements[__name__] == 14 and reads.total == 3
+    assert wp.array.numpy is numpy and wp.synchronize is sync  # zero cost when not counting
+
+
+def test_step_graph_is_the_step_on_the_cpu(tmp_path):
+    # Capture needs CUDA: on the CPU step_graph is step, bit for bit (the GPU path is untested here).
+    a, b = (Simulation(liquid_scene(tmp_path), "cpu") for _ in range(2))
+    for _ in range(3):
+        dt = a.stable_dt()
+        a.step(dt)
+        b.step_graph(dt)
+    assert not b._graphs
+    for name in ("x", "v", "C", "J"):
+        assert np.array_equal(a.particles.numpy(name), b.particles.numpy(name)), name

@@ -75,7 +75,8 @@ def load_checkpoint(sim, path) -> None:
         for name in GRID_CHECKPOINT:
             getattr(sim.fields, name).assign(data[name])
         for name in sim.host_state:
-            sim.host_state[name] = data[f"host_{name}"].copy()
+            if f"host_{name}" in data.files:  # else (an older checkpoint) the fresh default
+                sim.host_state[name] = data[f"host_{name}"].copy()
         sim.time, sim.frame = float(data["time"]), int(data["frame"])
         sim.max_particle_speed = float(data["max_speed"])
         sim.stats.steps = int(data["steps"])

@@ -19,7 +19,9 @@ u* = p/m + dt g (momentum-exact, lagged by one step; its size is bounded by the 
 A bubble whose cell is gas (or open air above the water) joins the resolved gas in place; the vent
 or foam stage then takes it if it is in open air.
 
-Conversions, on the host every `convert_every` steps (CI scenes convert a few times a frame):
+Conversions, every `convert_every` steps (CI scenes convert a few times a frame): the device
+selects the candidates (sub-grid bubbles, resolved gas) and packs their rows; the host reads only
+those (two reads, docs/host_syncs.md), groups them, and the device retires and pushes:
 - gather: per cell, the sub-grid volume of its 3^dim neighbourhood; neighbourhoods holding at least
   the threshold volume (4/3 pi radius^3), largest first, turn their bubbles into resolved gas
   particles filling the same volume (a ball, or in 2D a disk through the one-cell slab) at

@@ -5,7 +5,8 @@ waits for the device to drain: a host round trip. `HostReads` counts them while 
 by the module and function of the project code that asked (the first frame outside Warp and
 outside `Simulation.read_host`). It patches Warp's entry points only inside its ``with`` block,
 so it costs nothing when not counting. On the CPU device the same calls are counted, though
-there they cost nothing but a view: the count is what a GPU would pay.
+there they cost nothing but a view: the count is what a GPU would pay. Not seen: a `wp.copy`
+into a CPU array (the step makes none) and the GPU's own implicit syncs (allocation, uploads).
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 device: there a read costs nothing, but each is what a GPU would wait for."""
 
 import numpy as np
+import pytest
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
@@ -145,3 +146,19 @@ def test_step_graph_is_the_step_on_the_cpu(tmp_path):
     assert not b._graphs
     for name in ("x", "v", "C", "J"):
         assert np.array_equal(a.particles.numpy(name), b.particles.numpy(name)), name
+
+
+CUDA = wp.is_cuda_available()
+
+
+@pytest.mark.skipif(not CUDA, reason="CUDA graphs need a GPU (none here: this test has not run yet)")
+def test_step_graph_replays_the_step_on_a_gpu(tmp_path):
+    # A fixed dt, so the two captured stretches replay from the second step on. GPU atomics sum
+    # in any order: the same state to float32 round-off, the same launches.
+    a, b = (Simulation(liquid_scene(tmp_path), "cuda:0") for _ in range(2))
+    for _ in range(10):
+        a.step(5.0e-4)
+        b.step_graph(5.0e-4)
+    assert len(b._graphs) == 2 and a.launches == b.launches
+    np.testing.assert_allclose(b.particles.numpy("x"), a.particles.numpy("x"), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(b.particles.numpy("v"), a.particles.numpy("v"), rtol=0, atol=1e-4)

@@ -10,6 +10,7 @@ from warp_mpm_bubbles.core.host_reads import HostReads
 from warp_mpm_bubbles.core.grid import PHASE_GAS, PHASE_SUBGRID
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
+from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
 
 from test_subgrid import splash_scene
@@ -122,6 +123,19 @@ def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_
     x_tight, x_roomy = tight.particles.numpy("x"), roomy.particles.numpy("x")
     assert np.array_equal(x_tight[: n0 + 1], x_roomy[: n0 + 1])
     assert not np.array_equal(x_tight[n0 + 1:], x_roomy[n0 + 1:])
+
+
+def test_resuming_fewer_particles_leaves_zero_beyond_the_count(tmp_path):
+    # Entrainment's provisional slots (and every append) rely on zero, inactive slots beyond the
+    # count: a checkpoint with fewer particles than the fresh simulation must not leave old ones there.
+    a = Simulation(splash_scene(tmp_path), "cpu")
+    a.particles.compact(np.arange(0, a.num_particles, 2))
+    save_checkpoint(a, tmp_path / "c.npz")
+    b = Simulation(splash_scene(tmp_path), "cpu")
+    load_checkpoint(b, tmp_path / "c.npz")
+    assert b.num_particles == a.num_particles < b.particles.capacity
+    for name in ("active", "x", "phase"):
+        assert not getattr(b.particles, name).numpy()[b.num_particles:].any(), name
 
 
 def test_host_read_counter_attributes_reads_and_patches_nothing_outside(tmp_path):

@@ -242,7 +242,10 @@ class EntrainmentStage(Stage):
 
     def _read_report(self, sim, report):
         if self._pending:
-            self.settle(sim, int(report[1]))
+            total = int(report[1])
+            if total >= 1 << 24:  # past float32's exact integers (never in practice): the int itself
+                total = int(sim.read_host(self._total)[0])
+            self.settle(sim, total)
 
     def settle(self, sim, total: int):
         """The read-back gave this step's seed count: the particle count becomes exact."""

@@ -72,6 +72,8 @@ def load_checkpoint(sim, path) -> None:
         particles.count = n
         for name in particles.fields:
             getattr(particles, name)[:n].assign(data[f"particle_{name}"])
+            if n < particles.capacity:  # beyond the count stays zero (appends rely on it)
+                getattr(particles, name)[n:].zero_()
         for name in GRID_CHECKPOINT:
             getattr(sim.fields, name).assign(data[name])
         for name in sim.host_state:

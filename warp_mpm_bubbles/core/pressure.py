@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
 from .multigrid import MultigridPreconditioner
 
@@ -99,19 +100,12 @@ def apply_operator(
 
 
 @wp.kernel
-def reset_bounds(box: wp.array(dtype=wp.int32)):
-    t = wp.tid()
-    if t < 3:
-        box[t] = 2147483647
-    else:
-        box[t] = -1
-
-
-@wp.kernel
-def mask_and_bound(types: wp.array3d(dtype=wp.int32), x: wp.array3d(dtype=float), box: wp.array(dtype=wp.int32)):
-    """x = 0 off the fluid cells (the whole grid: the warm start may hold an older step's cells); box[0:3],
-    box[3:6] = min and max fluid cell (box starts at (big, -1))."""
-    i, j, k = wp.tid()
+def mask_and_bound(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), x: wp.array3d(dtype=float),
+                   box: wp.array(dtype=wp.int32)):
+    """x = 0 off the fluid cells (of the whole region: the warm start may hold an older step's cells);
+    box[0:3], box[3:6] = min and max fluid cell (box starts at (big, -1))."""
+    ti, tj, tk = wp.tid()
+    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
     if types[i, j, k] != FLUID:
         x[i, j, k] = 0.0
         return
@@ -230,9 +224,9 @@ def step_solution(
 
 @wp.kernel
 def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.array(dtype=wp.float64),
-                      tol: float, done: wp.array(dtype=wp.int32), info: wp.array(dtype=wp.float64)):
+                      tol2: wp.float64, done: wp.array(dtype=wp.int32), info: wp.array(dtype=wp.float64)):
     """One thread: after iteration `row` (0: the start), record it and raise `done` once
-    ||r|| <= tol ||b||, if b = 0, or if the iteration broke down (then it does not count)."""
+    ||r||^2 <= tol2 ||b||^2, if b = 0, or if the iteration broke down (then it does not count)."""
     if done[0] != 0:
         return
     b2 = sums[B2]
@@ -250,7 +244,7 @@ def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.arr
     rel2 = dots[row, RR] / b2
     info[ITERS] = wp.float64(row)
     info[2] = rel2
-    if rel2 <= wp.float64(tol) * wp.float64(tol):
+    if rel2 <= tol2:
         done[0] = 1
         info[DONE] = wp.float64(1.0)
 
@@ -364,10 +358,12 @@ class PressureSolver:
     def _launch(self, kernel, inputs, dim=None):
         wp.launch(kernel, dim or self.dims, inputs=inputs, device=self.device)
 
-    def _find_box(self, types, x):
+    def _find_box(self, types, x, region):
         """Mask x to the fluid cells and set self.box to the fluid bounding box grown by one cell."""
+        lo, hi = region or ((0, 0, 0), self.shape)
         wp.launch(reset_bounds, 6, inputs=[self.bounds], device=self.device)
-        wp.launch(mask_and_bound, self.shape, inputs=[types, x, self.bounds], device=self.device)
+        wp.launch(mask_and_bound, tuple(h - l for l, h in zip(lo, hi)), inputs=[wp.vec3i(*lo), types, x, self.bounds],  # noqa: E741
+                  device=self.device)
         if not self.active_box:
             self.box = ((0, 0, 0), tuple(self.shape))
         else:
@@ -403,12 +399,14 @@ class PressureSolver:
         return info[DONE] != 0.0, int(info[ITERS]), float(info[2])
 
     def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, singular: bool, n_fluid: int,
-              preconditioner: str = "multigrid"):
-        """Solve A x = b in place; x holds the warm start. preconditioner: "none" | "jacobi" | "multigrid"."""
+              preconditioner: str = "multigrid", region=None):
+        """Solve A x = b in place; x holds the warm start. preconditioner: "none" | "jacobi" | "multigrid".
+        region: None, or a box (lo, hi) that holds every fluid cell and outside which x is already 0
+        (the simulation's grid box): the one pass that masks x and finds the fluid box covers only it."""
         mode = PRECONDITIONERS.index(preconditioner)
         types, diag, inv_rho = system.types, system.diag, system.inv_rho
         self.host_reads = 0
-        self._find_box(types, x)
+        self._find_box(types, x, region)
         if min(self.dims) == 0:
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
@@ -429,10 +427,11 @@ class PressureSolver:
         apply = lambda p, out, row: self._launch(  # noqa: E731
             apply_operator, [lo, done, types, diag, *inv_rho, self.inv_dx2, self.dim, p, out, rows, row])
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
+        tol2 = wp.float64(tol * tol)
 
         apply(x, self.Ad, 0)  # its p . A p lands in row 0's DAD slot, which nothing reads
         self._launch(start_iteration, [lo, done, b, self.Ad, diag, mode, self.r, self.d, rows])
-        self._launch(check_convergence, [rows, 0, sums, tol, done, self.info], dim=1)
+        self._launch(check_convergence, [rows, 0, sums, tol2, done, self.info], dim=1)
         if mode == MULTIGRID:
             self._v_cycle(types, self.r, self.d, 0, project)
         stop, it, rel2 = self._check()
@@ -443,7 +442,7 @@ class PressureSolver:
                 apply(self.d, self.Ad, row)
                 self._launch(step_solution, [lo, done, rows, row, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
                                              self.z])
-                self._launch(check_convergence, [rows, row, sums, tol, done, self.info], dim=1)
+                self._launch(check_convergence, [rows, row, sums, tol2, done, self.info], dim=1)
                 if mode == MULTIGRID:
                     self._v_cycle(types, self.r, self.z, row, project)
                 self._launch(update_direction, [lo, done, rows, row, rz_slot, self.z, self.d])

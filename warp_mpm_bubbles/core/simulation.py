@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
@@ -40,6 +41,8 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 # Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
 TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
+# Hooks at which stages write grid arrays (anywhere): with any of them the grid stages cover the whole grid.
+GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
 @dataclass
@@ -91,6 +94,8 @@ class Simulation:
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device)
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
+        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
+        self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
         self._seed()
 
     def _init_geometry(self):
@@ -177,6 +182,7 @@ class Simulation:
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
             self.particles_to_grid()
+            self.region.update(self.particles)  # one read: the box the grid stages cover
             self._run("after_p2g", dt)  # gas sums
         with self.timer("grid"):
             self._grid_velocity_and_cells(dt)
@@ -206,31 +212,31 @@ class Simulation:
                     [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
 
     def _grid_velocity_and_cells(self, dt: float):
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch(gk.momentum_to_velocity, g.face_shape(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a]])
+            self.launch(gk.momentum_to_velocity, r.faces(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a], r.lo])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
-        self.launch(gk.classify_cells, g.cells,
+        self.launch(gk.classify_cells, r.cells,
                     [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
-                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types])
+                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, r.lo])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         for a in g.axes:
-            self.launch(gk.zero_solid_faces, g.face_shape(a), [f.types, a, f.vel[a]])
-            self.launch(gk.face_inverse_density, g.face_shape(a),
+            self.launch(gk.zero_solid_faces, r.faces(a), [f.types, a, f.vel[a], r.lo])
+            self.launch(gk.face_inverse_density, r.faces(a),
                         [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume, self.two_phase,
-                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a]])
+                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a], r.lo])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        self.launch(gk.pressure_diagonal_and_rhs, g.cells,
+        self.launch(gk.pressure_diagonal_and_rhs, r.cells,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                      self.two_phase, self.interface, g.dx, dt, g.dim, self.scene.solver.volume_correction,
-                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters])
+                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, r.lo])
 
     def _solve_pressure(self, dt: float):
-        g, f, settings = self.grid, self.fields, self.scene.solver
+        g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
         n_fluid, n_pinned = (int(c) for c in f.counters.numpy())
         bad = int(f.nonfinite.numpy()[0])
         if bad:
@@ -243,22 +249,23 @@ class Simulation:
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
             preconditioner=settings.preconditioner, singular=n_pinned == 0, n_fluid=n_fluid,
+            region=r.box if r.enabled else None,
         )
         self.stats.record(info)
         for a in g.axes:
-            self.launch(gk.subtract_pressure_gradient, g.face_shape(a),
-                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
+            self.launch(gk.subtract_pressure_gradient, r.faces(a),
+                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], r.lo])
 
     def extend(self, vel, valid):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
         then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
-                self.launch(gk.extrapolate_velocity, g.face_shape(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a]])
+                self.launch(gk.extrapolate_velocity, r.faces(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], r.lo])
                 vel[a], f.vel_tmp[a] = f.vel_tmp[a], vel[a]
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
-            self.launch(gk.enforce_walls, g.face_shape(a), [f.types, a, vel[a]])
+            self.launch(gk.enforce_walls, r.faces(a), [f.types, a, vel[a], r.lo])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
 

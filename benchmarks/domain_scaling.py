@@ -9,14 +9,16 @@ Part 1, scaling. A W^3-cell water block (--block W) at 8 particles per cell fall
 free-slip box; "tight": the domain is the block plus --margin cells on every side; "8x": the domain
 doubled per axis, the block in its middle. Both are stepped with the same fixed dt (the tight case's
 stable_dt at the start), so both see the same physics (the block never reaches a wall; the CG
-iteration counts are printed). Configurations: tight and 8x with the pressure solve on the fluid's
-bounding box (the default), and 8x with the whole-grid solve (PressureSolver(active_box=False)).
+iteration counts are printed). Configurations: tight and 8x as the step runs now (grid stages on the
+particles' box, core/active_box.py; the solve on the fluid's box), and 8x with whole-grid launches
+for both (ActiveRegion(enabled=False), PressureSolver(active_box=False)): the cost before issue #13.
 
 Part 2, pressure before/after on the peer configuration (benchmarks/peer_comparison.py: an N^3 unit
-box, a block of (N/2)^3 cells centred, free-slip walls, --peer-grid N, default 32, the reduced one;
-64 is the issue's): the same scene stepped by three pressure solvers, "base" (core/pressure.py and
-core/multigrid.py of commit --base, loaded from git), the new solver over the whole grid, and the new
-solver on the box. The rest of the step is the same code for all three.
+box, a block of (N/2)^3 cells centred, free-slip walls; --peer-grid N, default 32, the reduced one;
+64 is the issue's): the same scene stepped with "base" (core/pressure.py and core/multigrid.py of
+commit --base, loaded from git, with whole-grid grid stages: the code before), "whole_grid" (this
+solver and the grid stages over the whole grid), "box" (as the step runs now) and, with
+--check-every, the box solver with other check intervals. All step bit-identically (printed).
 
 Each round steps every configuration --steps times, in an order that alternates between rounds, after
 --warmup untimed steps (kernel compile or cache load); figures are medians over --rounds rounds of the
@@ -38,6 +40,7 @@ from pathlib import Path
 import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings
+from warp_mpm_bubbles.core.active_box import ActiveRegion
 from warp_mpm_bubbles.core.pressure import PressureSolver
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.core.timing import describe_device
@@ -87,12 +90,16 @@ def base_solver_class(commit: str):
 
 
 class Runner:
-    """One simulation, stepped with a fixed dt; per-step stage milliseconds and CG iterations."""
+    """One simulation, stepped with a fixed dt; per-step stage milliseconds and CG iterations.
+    solver: a function of the simulation giving its pressure solver; whole_grid: grid stages launched
+    over the whole grid (ActiveRegion disabled)."""
 
-    def __init__(self, name, scene, device, solver=None):
+    def __init__(self, name, scene, device, solver=None, whole_grid=False):
         self.name, self.sim = name, Simulation(scene, device=device)
         if solver is not None:
             self.sim.solver = solver(self.sim)
+        if whole_grid:
+            self.sim.region = ActiveRegion(self.sim.grid, self.sim.device, enabled=False)
         self.samples = {s: [] for s in (*STAGES, "step")}
         self.iterations = []
 
@@ -135,13 +142,15 @@ def scaling(args, device, tmp) -> dict:
     dx = 1.0 / (2 * (w + 2 * m))  # the 8x domain is 1 m wide
     tight_n, big_n = w + 2 * m, 2 * (w + 2 * m)
     tight, big = block_scene(tight_n, w, m, dx, tmp), block_scene(big_n, w, (big_n - w) // 2, dx, tmp)
-    whole = lambda sim: PressureSolver(sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device,  # noqa: E731
-                                       active_box=False)
-    runners = [Runner("tight", tight, device), Runner("8x", big, device), Runner("8x_whole_grid_solve", big, device,
-                                                                               whole)]
+    runners = [Runner("tight", tight, device), Runner("8x", big, device),
+               Runner("8x_whole_grid", big, device, whole_solver, whole_grid=True)]
     dt = runners[0].sim.stable_dt()
     return {"block": w, "margin": m, "dx": dx, "dt": dt, "domains": [tight_n, big_n],
             "results": measure(runners, dt, args)}
+
+
+def whole_solver(sim, **kw):
+    return PressureSolver(sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device, active_box=False, **kw)
 
 
 def peer_pressure(args, device, tmp) -> dict:
@@ -152,10 +161,13 @@ def peer_pressure(args, device, tmp) -> dict:
     base = base_solver_class(args.base)
     if base is not None:
         runners.append(Runner(f"base_{args.base}", scene, device,
-                              lambda sim: base(sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device)))
-    runners.append(Runner("whole_grid", scene, device, lambda sim: PressureSolver(
-        sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device, active_box=False)))
+                              lambda sim: base(sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device),
+                              whole_grid=True))
+    runners.append(Runner("whole_grid", scene, device, whole_solver, whole_grid=True))
     runners.append(Runner("box", scene, device))
+    for k in args.check_every:  # iterations between the host's convergence checks
+        runners.append(Runner(f"box_check_every_{k}", scene, device, lambda sim, k=k: PressureSolver(
+            sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device, check_every=k)))
     dt = runners[0].sim.stable_dt()
     return {"grid": n, "block": w, "dt": dt, "results": measure(runners, dt, args)}
 
@@ -178,9 +190,9 @@ def markdown(meta, scale, peer) -> str:
         out += [f"## The same {scale['block']}^3-cell block in a {scale['domains'][0]}^3 and a "
                 f"{scale['domains'][1]}^3 domain (dt = {scale['dt']:.3g} s)", "", *table(r), "",
                 f"8x / tight per step: **{r['8x']['step_ms'] / r['tight']['step_ms']:.2f}** (pressure "
-                f"{r['8x']['pressure_ms'] / r['tight']['pressure_ms']:.2f}); with the whole-grid solve "
-                f"{r['8x_whole_grid_solve']['step_ms'] / r['tight']['step_ms']:.2f} (pressure "
-                f"{r['8x_whole_grid_solve']['pressure_ms'] / r['tight']['pressure_ms']:.2f}).", ""]
+                f"{r['8x']['pressure_ms'] / r['tight']['pressure_ms']:.2f}); with whole-grid launches (grid stages "
+                f"and solve, as before issue #13) {r['8x_whole_grid']['step_ms'] / r['tight']['step_ms']:.2f} "
+                f"(pressure {r['8x_whole_grid']['pressure_ms'] / r['tight']['pressure_ms']:.2f}).", ""]
     if peer:
         r = peer["results"]
         out += [f"## Pressure stage before/after: peer configuration at {peer['grid']}^3, "
@@ -198,6 +210,9 @@ def main(argv=None) -> int:
     ap.add_argument("--margin", type=int, default=4, help="cells between the block and the tight box's walls")
     ap.add_argument("--peer-grid", type=int, default=32, help="peer configuration grid for part 2 (0: skip)")
     ap.add_argument("--skip-scaling", action="store_true")
+    ap.add_argument("--check-every", type=int, nargs="*", default=[],
+                    help="part 2 also runs the box solver with these check intervals (e.g. 1 2 8; the default is "
+                         "core.pressure.CHECK_EVERY)")
     ap.add_argument("--base", default="b8f0711", help="commit whose solver is 'base' in part 2")
     ap.add_argument("--steps", type=int, default=4)
     ap.add_argument("--rounds", type=int, default=3)

@@ -180,8 +180,11 @@ def test_reported_iterations_and_residual_are_honest(check_every):
     # the reported residual is the recurrence's ||r||; the true one agrees to float32 round-off
     true = residual(system, problem, x, dim)
     assert true < 30 * TOL and abs(true - info.residual) < 30 * TOL
-    # reads: the box, the start, then one per chunk of check_every iterations
-    assert solver.host_reads == 2 + math.ceil(info.iterations / check_every)
+    # reads: the box, then one per chunk of check_every iterations (a fresh solver's first chunk)
+    assert solver.host_reads == 1 + math.ceil(info.iterations / check_every)
+    # solved again, the first chunk is the last solve's count: one read for the box, one for the flag
+    _, again, _ = solve(solver, problem, dim)
+    assert again == info and solver.host_reads == 2
     # the count is the number of updates of x it took: one fewer is not enough
     _, short, _ = solve(solver, problem, dim, max_iter=info.iterations - 1)
     assert not short.converged and short.iterations == info.iterations - 1 and short.residual > TOL

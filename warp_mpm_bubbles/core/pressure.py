@@ -3,8 +3,10 @@
 The operator is ``A p = -div(1/rho grad p)`` over fluid cells (empty cells are Dirichlet p = 0 gauge,
 solid faces Neumann), plus, from issue #3 on, a per-cell ``kappa/dt^2`` term for the gas. The CG is
 hand-written because ``warp.optim.linear.cg`` spends most of its CPU time in its reduction kernel
-(docs/design.md, #cg-on-warp); each iteration is three launches and two scalar read-backs (plus one V-cycle and one
-dot product with the multigrid preconditioner of multigrid.py).
+(docs/design.md, #cg-on-warp); each iteration is four launches (plus one V-cycle and one dot product with
+the multigrid preconditioner of multigrid.py) and no read-back: alpha, beta and the convergence test
+are computed on the device, and the host checks a device flag every CHECK_EVERY iterations. All
+launches cover the fluid cells' bounding box (docs/performance.md).
 
 Preconditioners: "none", "jacobi" (diagonal), "multigrid" (one symmetric V-cycle). Jacobi-PCG
 iterations grow linearly with the resolution and with the density ratio; multigrid-PCG's barely
@@ -332,8 +334,9 @@ class PressureSolver:
     that they accumulate into one device row per iteration (on the CPU the atomics run in thread
     order, so results are deterministic). A one-thread kernel raises a device flag at convergence,
     after which every kernel returns at once; the host reads the flag (with the iteration count and
-    residual) every `check_every` iterations, so up to check_every - 1 iterations are launched as
-    no-ops. That is a fixed launch sequence per chunk, which a CUDA graph can capture
+    residual) first after as many iterations as the last solve took (consecutive warm-started steps
+    take about as many: usually that one read is all), then every `check_every` iterations; up to
+    check_every - 1 iterations past convergence are launched as no-ops. That is a fixed launch sequence per chunk, which a CUDA graph can capture
     (wp.capture_while on the flag would make the loop itself device-side).
     """
 
@@ -353,6 +356,7 @@ class PressureSolver:
         self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
         self.multigrid = None  # built on first use
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
+        self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
 
     def _launch(self, kernel, inputs, dim=None):
@@ -434,10 +438,11 @@ class PressureSolver:
         self._launch(check_convergence, [rows, 0, sums, tol2, done, self.info], dim=1)
         if mode == MULTIGRID:
             self._v_cycle(types, self.r, self.d, 0, project)
-        stop, it, rel2 = self._check()
-        row = 0
+        # Chunks of iterations between reads: the first as long as the last solve took (warm-started
+        # steps take about as many), then check_every. Iterations past convergence are no-ops.
+        row, stop, chunk = 0, False, self.predicted
         while not stop and row < max_iter:
-            for _ in range(min(self.check_every, max_iter - row)):
+            for _ in range(min(chunk, max_iter - row)):
                 row += 1
                 apply(self.d, self.Ad, row)
                 self._launch(step_solution, [lo, done, rows, row, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
@@ -447,6 +452,10 @@ class PressureSolver:
                     self._v_cycle(types, self.r, self.z, row, project)
                 self._launch(update_direction, [lo, done, rows, row, rz_slot, self.z, self.d])
             stop, it, rel2 = self._check()
+            chunk = self.check_every
+        if row == 0:  # max_iter == 0
+            stop, it, rel2 = self._check()
+        self.predicted = max(it, 1)
         if project:
             done.zero_()
             self._launch(fluid_sums, [lo, done, types, x, sums, X_SUM, -1])

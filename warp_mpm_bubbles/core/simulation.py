@@ -13,7 +13,8 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid; docs/design.
 
 Each optional stage joins at named hook points (`Stage`): the step below reads as that list.
 The time step is the smallest of the CFL limit and the stages' limits, and lands exactly on frame
-times. Inside a step the host reads only scalars (CG reductions, counters, the fastest particle).
+times. Inside a step the host reads only scalars: the grid box (core/active_box.py), the fluid box and the
+CG's exit flag every few iterations (core/pressure.py), counters, the fastest particle.
 """
 
 from __future__ import annotations

@@ -169,7 +169,38 @@ def peer_pressure(args, device, tmp) -> dict:
         runners.append(Runner(f"box_check_every_{k}", scene, device, lambda sim, k=k: PressureSolver(
             sim.grid.cells, sim.grid.dim, sim.grid.dx, sim.device, check_every=k)))
     dt = runners[0].sim.stable_dt()
-    return {"grid": n, "block": w, "dt": dt, "results": measure(runners, dt, args)}
+    results = measure(runners, dt, args)
+    return {"grid": n, "block": w, "dt": dt, "results": results,
+            "solve_only": solve_only(runners[-1].sim, base, args.rounds * args.steps)}
+
+
+def solve_only(sim, base, repeats: int) -> dict:
+    """The last step's pressure system solved from x = 0 by each solver in turn, `repeats` times:
+    milliseconds per solve (median) without the rest of the step, and the iterations."""
+    import time
+
+    from warp_mpm_bubbles.core.pressure import PressureSystem
+
+    f, g, settings = sim.fields, sim.grid, sim.scene.solver
+    system = PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag)
+    n_fluid, n_pinned = (int(c) for c in f.counters.numpy())
+    make = {"whole_grid": lambda: PressureSolver(g.cells, g.dim, g.dx, sim.device, active_box=False),
+            "box": lambda: PressureSolver(g.cells, g.dim, g.dx, sim.device)}
+    if base is not None:
+        make = {"base": lambda: base(g.cells, g.dim, g.dx, sim.device), **make}
+    solvers = {name: m() for name, m in make.items()}
+    times, info = {name: [] for name in solvers}, {}
+    for k in range(repeats + 1):  # the first round warms up
+        for name, solver in solvers.items() if k % 2 else reversed(solvers.items()):
+            b, x = wp.clone(f.rhs), wp.zeros_like(f.pressure)
+            wp.synchronize_device(sim.device)
+            t0 = time.perf_counter()
+            info[name] = solver.solve(system, b, x, tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
+                                      singular=n_pinned == 0, n_fluid=n_fluid, preconditioner=settings.preconditioner)
+            wp.synchronize_device(sim.device)
+            if k:
+                times[name].append((time.perf_counter() - t0) * 1e3)
+    return {name: {"ms": statistics.median(t), "iterations": info[name].iterations} for name, t in times.items()}
 
 
 def table(results: dict, columns=("step", *STAGES)) -> list[str]:
@@ -198,6 +229,9 @@ def markdown(meta, scale, peer) -> str:
         out += [f"## Pressure stage before/after: peer configuration at {peer['grid']}^3, "
                 f"{peer['block']}^3-cell block", "", *table(r), ""]
         first = next(iter(r))
+        so = peer["solve_only"]
+        out += [f"Solve only (the last system, from x = 0, {meta['rounds'] * meta['steps']} alternating repeats): "
+                + ", ".join(f"{k} {v['ms']:.1f} ms ({v['iterations']} it)" for k, v in so.items()), ""]
         out += [f"pressure ms, {name} / {first}: {v['pressure_ms'] / r[first]['pressure_ms']:.2f}; step "
                 f"{v['step_ms'] / r[first]['step_ms']:.2f}; particles bit-identical to {first}'s after all steps: "
                 f"{v.get('positions_identical_to_' + first, True)}" + "  " for name, v in r.items()]

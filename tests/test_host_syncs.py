@@ -65,10 +65,11 @@ def test_liquid_only_step_reads_two_small_arrays_besides_the_solver(tmp_path):
     for reads, iterations, solves in counted_steps(sim, 6):
         assert solves == 1
         other = {m: n for m, n in reads.by_module.items() if m not in SOLVER_MODULES}
-        assert other == {"core.simulation": STEP_READS}
+        # liquid only: the grid stages' box (core/active_box.py, 6 ints) is read once per step too
+        assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
         assert reads.elements["core.simulation"] == STEP_ELEMENTS
         assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} == {
-            ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step")}
+            ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step"), ("core.active_box", "update")}
         assert_solver_within_bound(reads, iterations, solves)
 
 

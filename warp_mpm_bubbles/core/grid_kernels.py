@@ -57,10 +57,12 @@ def is_solid(t: int):
 
 @wp.kernel
 def momentum_to_velocity(
-    mom: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), accel: float, dt: float, vel: wp.array3d(dtype=float)
+    mom: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), accel: float, dt: float, vel: wp.array3d(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """u* = p/m + dt g on faces that received mass; zero elsewhere."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     m = mass[i, j, k]
     if m > 0.0:
         vel[i, j, k] = mom[i, j, k] / m + dt * accel
@@ -100,6 +102,7 @@ def classify_cells(
     wall_lo: wp.vec3i,
     wall_hi: wp.vec3i,
     types: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Ghost cells take the type of their wall (open walls are empty); inside, a cell is fluid if
     a particle is in it or if the splatted fill fraction exceeds HOLE_FRACTION.
@@ -109,6 +112,7 @@ def classify_cells(
     about 0.44 from its neighbours, while the air above a flat surface gets about 0.17.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     c = wp.vec3i(i, j, k)
     in_wall = int(0)
     sticky = int(0)
@@ -204,6 +208,7 @@ def face_inverse_density(
     axis: int,
     inv_cell_vol: float,
     inv_rho: wp.array3d(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Face weight of the pressure operator: 1/rho, divided by theta on liquid-air faces; 0 if inactive.
 
@@ -217,6 +222,7 @@ def face_inverse_density(
     between the centres (ghost-fluid method, Liu, Fedkiw & Kang 2000).
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -291,9 +297,10 @@ def interface_density(
 
 
 @wp.kernel
-def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float)):
+def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), lo: wp.vec3i):
     """Walls are at rest: the normal velocity on any face touching a solid cell is zero."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     if is_solid(cell_type_at(types, lo)) or is_solid(cell_type_at(types, hi)):
@@ -372,6 +379,7 @@ def pressure_diagonal_and_rhs(
     rhs: wp.array3d(dtype=float),
     target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Diagonal and right-hand side of the one two-phase system (docs/design.md, #pressure-equation), per fluid cell c:
 
@@ -385,6 +393,7 @@ def pressure_diagonal_and_rhs(
     none, the system is singular and the solver projects out the constant.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if two_phase != 0:
         target_div[i, j, k] = 0.0
     if types[i, j, k] != FLUID:
@@ -436,12 +445,14 @@ def subtract_pressure_gradient(
     dt: float,
     vel: wp.array3d(dtype=float),
     valid: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """u = u* - dt/rho dp/dx on faces next to fluid (p = 0 gauge in empty cells).
 
     Marks which faces now hold trusted velocities: projected faces and solid faces bordering fluid.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -492,12 +503,14 @@ def extrapolate_velocity(
     dim: int,
     vel_out: wp.array3d(dtype=float),
     valid_out: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """One layer of extrapolation: an untrusted face takes the mean of its trusted neighbours.
 
     Ping-pong buffers keep the result independent of thread order.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     vel_out[i, j, k] = vel_in[i, j, k]
     valid_out[i, j, k] = valid_in[i, j, k]
     if valid_in[i, j, k] == 1:
@@ -518,12 +531,13 @@ def extrapolate_velocity(
 
 
 @wp.kernel
-def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float)):
+def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), lo: wp.vec3i):
     """Zero normal velocity at solid faces; inside no-slip walls also zero the tangential velocity.
 
     Inside free-slip walls the extrapolated tangential velocity stays, so particles slide along.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)

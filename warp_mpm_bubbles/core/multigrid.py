@@ -31,6 +31,14 @@ cell types and face weights change every step. Choices (measured in benchmarks/p
   below PIVOT_TOLERANCE of its diagonal (the constant mode of a closed tank) is dropped, which
   gives a symmetric positive semi-definite pseudo-inverse.
 
+Active box (issue #13): every level works on the bounding box of the cells that can be unknowns,
+[lo, hi), passed in the Level struct; cells outside it count as outside the arrays. The finest box
+is the fluid cells' bounding box, each coarser one the parents of the finer box, so the hierarchy and
+every unknown are those of the whole-grid V-cycle and the result is bit-identical (red-black colours
+are global, cells outside the box only ever contributed w * 0). Launches cover the box only, so the
+cost follows the liquid, not the domain. Every kernel also returns at once when `L.done[0]` is set:
+the CG's device-side exit flag, so iterations launched past convergence cost a launch, no work.
+
 All arrays of all levels are allocated once per grid. Per V-cycle: 4 * SMOOTHING_SWEEPS smoothing
 launches (each over one colour), one restriction (fused with the residual) and one prolongation
 per level, plus one coarsest solve; no host loops over cells. On the finest level a V-cycle costs
@@ -72,14 +80,30 @@ class Level:
     scale: float
     dim: int
     finest: int
+    lo: wp.vec3i  # the active box [lo, hi): cells outside it are treated as outside the arrays
+    hi: wp.vec3i
+    done: wp.array(dtype=wp.int32)  # done[0] != 0: skip (the CG converged on the device)
+
+
+@wp.func
+def in_box(L: Level, c: wp.vec3i):
+    if c[0] < L.lo[0] or c[1] < L.lo[1] or c[2] < L.lo[2]:
+        return False
+    if c[0] >= L.hi[0] or c[1] >= L.hi[1] or c[2] >= L.hi[2]:
+        return False
+    return True
+
+
+@wp.func
+def box_cell(L: Level, i: int, j: int, k: int):
+    """Thread (i, j, k) of a launch over the box -> its cell."""
+    return wp.vec3i(i + L.lo[0], j + L.lo[1], k + L.lo[2])
 
 
 @wp.func
 def type_at(L: Level, c: wp.vec3i):
-    """Cell type, or -1 outside the arrays."""
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return -1
-    if c[0] >= L.types.shape[0] or c[1] >= L.types.shape[1] or c[2] >= L.types.shape[2]:
+    """Cell type, or -1 outside the active box (which lies inside the arrays)."""
+    if not in_box(L, c):
         return -1
     return L.types[c[0], c[1], c[2]]
 
@@ -96,16 +120,33 @@ def weight(L: Level, axis: int, f: wp.vec3i):
 
 @wp.func
 def neighbour_sum(L: Level, x: wp.array3d(dtype=float), i: int, j: int, k: int):
-    """sum of w_f x_n over the faces of cell (i, j, k).
+    """sum of w_f x_n over the faces of cell (i, j, k) to neighbours inside the active box.
 
-    Relies on x = 0 on every cell that is not an unknown (so faces to Dirichlet cells drop out) and
-    on w = 0 on the faces at the arrays' edges (so the clamped index past an edge drops out).
+    Relies on x = 0 on every cell of the box that is not an unknown (so faces to Dirichlet cells drop
+    out). Neighbours outside the box are never unknowns; their faces are skipped, not read (a face
+    past the box's high end belongs to a cell no launch covers, so it may hold an older solve's value).
     """
-    nx, ny, nz = L.types.shape[0], L.types.shape[1], L.types.shape[2]
-    s = L.w_u[i, j, k] * x[wp.max(i - 1, 0), j, k] + L.w_u[i + 1, j, k] * x[wp.min(i + 1, nx - 1), j, k]
-    s += L.w_v[i, j, k] * x[i, wp.max(j - 1, 0), k] + L.w_v[i, j + 1, k] * x[i, wp.min(j + 1, ny - 1), k]
+    # Sums grouped per axis as (low + high), skipped terms 0: on the whole grid this is the rounding of
+    # the sum it replaced, term for term (the base solver's results are reproduced bit for bit).
+    lo_t, hi_t = float(0.0), float(0.0)
+    if i > L.lo[0]:
+        lo_t = L.w_u[i, j, k] * x[i - 1, j, k]
+    if i + 1 < L.hi[0]:
+        hi_t = L.w_u[i + 1, j, k] * x[i + 1, j, k]
+    s = lo_t + hi_t
+    lo_t, hi_t = float(0.0), float(0.0)
+    if j > L.lo[1]:
+        lo_t = L.w_v[i, j, k] * x[i, j - 1, k]
+    if j + 1 < L.hi[1]:
+        hi_t = L.w_v[i, j + 1, k] * x[i, j + 1, k]
+    s += lo_t + hi_t
     if L.dim == 3:
-        s += L.w_w[i, j, k] * x[i, j, wp.max(k - 1, 0)] + L.w_w[i, j, k + 1] * x[i, j, wp.min(k + 1, nz - 1)]
+        lo_t, hi_t = float(0.0), float(0.0)
+        if k > L.lo[2]:
+            lo_t = L.w_w[i, j, k] * x[i, j, k - 1]
+        if k + 1 < L.hi[2]:
+            hi_t = L.w_w[i, j, k + 1] * x[i, j, k + 1]
+        s += lo_t + hi_t
     return s
 
 
@@ -146,9 +187,12 @@ def coarse_coupling(F: Level, axis: int, f0: wp.vec3i):
 
 @wp.kernel
 def build_coarse(F: Level, C: Level, laplacian_scale: float):
-    """Coarse cell C's row of the operator from its fine children (one thread per coarse cell)."""
-    i, j, k = wp.tid()
-    cc = wp.vec3i(i, j, k)
+    """Coarse cell C's row of the operator from its fine children (one thread per cell of C's box)."""
+    if C.done[0] != 0:
+        return
+    ti, tj, tk = wp.tid()
+    cc = box_cell(C, ti, tj, tk)
+    i, j, k = cc[0], cc[1], cc[2]
     nz = 1
     if F.dim == 3:
         nz = 2
@@ -189,11 +233,14 @@ def build_coarse(F: Level, C: Level, laplacian_scale: float):
 
 @wp.kernel
 def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
-    """One colour of a red-black Gauss-Seidel sweep on A x = b; thread (h, j, k) is cell (i, j, k) of that
-    colour with i = 2 h or 2 h + 1."""
-    h, j, k = wp.tid()
-    i = 2 * h + (j + k + color) % 2
-    if i >= L.types.shape[0]:
+    """One colour of a red-black Gauss-Seidel sweep on A x = b over the box; thread (h, j, k) is the
+    cell of that colour with i = lo + 2 h or lo + 2 h + 1."""
+    if L.done[0] != 0:
+        return
+    h, tj, tk = wp.tid()
+    j, k = tj + L.lo[1], tk + L.lo[2]
+    i = L.lo[0] + 2 * h + (L.lo[0] + j + k + color) % 2  # colour = parity of i + j + k, as on the whole grid
+    if i >= L.hi[0]:
         return
     if L.types[i, j, k] != FLUID:
         return
@@ -204,12 +251,15 @@ def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), col
 
 @wp.kernel
 def restrict_residual(
-    F: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+    F: Level, C: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
     b_coarse: wp.array3d(dtype=float), x_coarse: wp.array3d(dtype=float),
 ):
-    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0."""
-    i, j, k = wp.tid()
-    cc = wp.vec3i(i, j, k)
+    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0 (over C's box)."""
+    if C.done[0] != 0:
+        return
+    ti, tj, tk = wp.tid()
+    cc = box_cell(C, ti, tj, tk)
+    i, j, k = cc[0], cc[1], cc[2]
     nz = 1
     if F.dim == 3:
         nz = 2
@@ -225,9 +275,13 @@ def restrict_residual(
 
 
 @wp.kernel
-def prolongate(types: wp.array3d(dtype=wp.int32), x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
-    i, j, k = wp.tid()
-    if types[i, j, k] == FLUID:
+def prolongate(F: Level, x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+    if F.done[0] != 0:
+        return
+    ti, tj, tk = wp.tid()
+    c = box_cell(F, ti, tj, tk)
+    i, j, k = c[0], c[1], c[2]
+    if F.types[i, j, k] == FLUID:
         x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]
 
 
@@ -238,7 +292,10 @@ def dense_index(L: Level, c: wp.vec3i):
 
 @wp.kernel
 def factor_coarsest(L: Level, A: wp.array2d(dtype=wp.float64), inv_pivot: wp.array(dtype=wp.float64)):
-    """Assemble the coarsest operator densely (in float64) and factor it, A = L L^T in place (one thread)."""
+    """Assemble the coarsest operator densely (in float64) and factor it, A = L L^T in place (one thread).
+    Cells outside the box get an identity row, like the other non-unknowns."""
+    if L.done[0] != 0:
+        return
     n = A.shape[0]
     for r in range(n):
         for c in range(n):
@@ -248,7 +305,7 @@ def factor_coarsest(L: Level, A: wp.array2d(dtype=wp.float64), inv_pivot: wp.arr
             for k in range(L.types.shape[2]):
                 cc = wp.vec3i(i, j, k)
                 r = dense_index(L, cc)
-                if L.types[i, j, k] != FLUID:
+                if type_at(L, cc) != FLUID:
                     A[r, r] = wp.float64(1.0)
                 else:
                     d = wp.float64(at(L.extra, cc)) + wp.float64(dirichlet_term(L, cc))
@@ -288,12 +345,17 @@ def solve_coarsest(
     L: Level, A: wp.array2d(dtype=wp.float64), inv_pivot: wp.array(dtype=wp.float64),
     b: wp.array3d(dtype=float), y: wp.array(dtype=wp.float64), x: wp.array3d(dtype=float),
 ):
-    """x = L^-T L^-1 b with the factor of factor_coarsest (one thread)."""
+    """x = L^-T L^-1 b with the factor of factor_coarsest (one thread); b reads 0 outside the box."""
+    if L.done[0] != 0:
+        return
     n = A.shape[0]
     nyz = L.types.shape[1] * L.types.shape[2]
     nz = L.types.shape[2]
     for r in range(n):
-        t = wp.float64(b[r // nyz, (r // nz) % L.types.shape[1], r % nz])
+        c = wp.vec3i(r // nyz, (r // nz) % L.types.shape[1], r % nz)
+        t = wp.float64(0.0)
+        if in_box(L, c):
+            t = wp.float64(b[c[0], c[1], c[2]])
         for m in range(r):
             t -= A[r, m] * y[m]
         y[r] = t * inv_pivot[r]
@@ -315,8 +377,19 @@ def level_shapes(shape, dim: int) -> list[tuple[int, int, int]]:
     return shapes
 
 
+def coarse_box(box, dim: int):
+    """The parents of the cells of box [lo, hi) on the next coarser level."""
+    lo, hi = box
+    return (tuple(n // 2 if a < dim else n for a, n in enumerate(lo)),
+            tuple((n - 1) // 2 + 1 if a < dim else n for a, n in enumerate(hi)))
+
+
+def box_dims(box) -> tuple[int, int, int]:
+    return tuple(max(h - l, 0) for l, h in zip(*box))  # noqa: E741
+
+
 class MultigridPreconditioner:
-    """z = M^-1 r by one V-cycle; call build(system) once per solve before apply()."""
+    """z = M^-1 r by one V-cycle; call build(system, box) once per solve before apply()."""
 
     def __init__(self, shape, dim: int, dx: float, device, *, sweeps: int = SMOOTHING_SWEEPS,
                  laplacian_scale: float = COARSE_LAPLACIAN_SCALE):
@@ -324,6 +397,7 @@ class MultigridPreconditioner:
         self.inv_dx2 = 1.0 / (dx * dx)
         self.sweeps, self.laplacian_scale = sweeps, laplacian_scale
         self.shapes = level_shapes(shape, dim)
+        self.not_done = wp.zeros(1, dtype=wp.int32, device=device)  # the flag when no CG passes one
         self.levels = [None]  # the finest Level wraps the system's arrays, set by build()
         self.b, self.x = [None], [None]
         for s in self.shapes[1:]:
@@ -336,6 +410,7 @@ class MultigridPreconditioner:
             self.levels.append(L)
             self.b.append(zeros())
             self.x.append(zeros())
+        self.boxes = [((0, 0, 0), s) for s in self.shapes]
         n = math.prod(self.shapes[-1])
         self.factor = wp.zeros((n, n), dtype=wp.float64, device=device)
         self.inv_pivot = wp.zeros(n, dtype=wp.float64, device=device)
@@ -345,34 +420,45 @@ class MultigridPreconditioner:
         wp.launch(kernel, shape, inputs=inputs, device=self.device)
 
     def _smooth(self, lvl, b, x, color):
-        s = self.shapes[lvl]
+        s = box_dims(self.boxes[lvl])
         self._launch(smooth, ((s[0] + 1) // 2, s[1], s[2]), [self.levels[lvl], b, x, color])
 
-    def build(self, system):
-        """Wrap the fine system, build every coarse level from the one above, factor the coarsest."""
+    def build(self, system, box=None, done=None):
+        """Wrap the fine system, build every coarse level from the one above, factor the coarsest.
+
+        box: (lo, hi) on the finest level, containing every fluid cell and its face neighbours
+        (default: the whole grid); done: the CG's exit flag (an int32 device array of one)."""
+        self.boxes = [tuple(map(tuple, box)) if box is not None else ((0, 0, 0), self.shapes[0])]
+        for _ in self.shapes[1:]:
+            self.boxes.append(coarse_box(self.boxes[-1], self.dim))
         F = Level()
         F.types = system.types
         F.w_u, F.w_v, F.w_w = system.inv_rho
         F.diag, F.extra, F.dirichlet = system.diag, system.extra_diag, system.diag  # dirichlet unused here
         F.scale, F.dim, F.finest = self.inv_dx2, self.dim, 1
         self.levels[0] = F
+        for L, (lo, hi) in zip(self.levels, self.boxes):
+            L.lo, L.hi = wp.vec3i(*lo), wp.vec3i(*hi)
+            L.done = self.not_done if done is None else done
         for lvl in range(1, len(self.levels)):
-            self._launch(build_coarse, self.shapes[lvl], [self.levels[lvl - 1], self.levels[lvl], self.laplacian_scale])
+            self._launch(build_coarse, box_dims(self.boxes[lvl]),
+                         [self.levels[lvl - 1], self.levels[lvl], self.laplacian_scale])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
 
     def apply(self, r, z):
-        """z = M^-1 r (one V-cycle from z = 0); r and z are fine-level cell arrays."""
+        """z = M^-1 r (one V-cycle from z = 0 on the box); r and z are fine-level cell arrays, z is 0
+        outside the box."""
         b, x, last = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1
         z.zero_()
         for lvl in range(last):
             for _ in range(self.sweeps):
                 for color in (0, 1):
                     self._smooth(lvl, b[lvl], x[lvl], color)
-            self._launch(restrict_residual, self.shapes[lvl + 1],
-                         [self.levels[lvl], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
+            self._launch(restrict_residual, box_dims(self.boxes[lvl + 1]),
+                         [self.levels[lvl], self.levels[lvl + 1], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
         self._launch(solve_coarsest, 1, [self.levels[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])
         for lvl in range(last - 1, -1, -1):
-            self._launch(prolongate, self.shapes[lvl], [self.levels[lvl].types, x[lvl + 1], x[lvl]])
+            self._launch(prolongate, box_dims(self.boxes[lvl]), [self.levels[lvl], x[lvl + 1], x[lvl]])
             for _ in range(self.sweeps):
                 for color in (1, 0):
                     self._smooth(lvl, b[lvl], x[lvl], color)

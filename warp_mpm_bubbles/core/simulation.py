@@ -13,8 +13,9 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid; docs/design.
 
 Each optional stage joins at named hook points (`Stage`): the step below reads as that list.
 The time step is the smallest of the CFL limit and the stages' limits, and lands exactly on frame
-times. Inside a step the host reads only scalars (CG reductions, the solve's cell counts, one
-read-back at the end); `count_host_reads` counts them, docs/host_syncs.md lists them.
+times. Inside a step the host reads only scalars: the grid box (core/active_box.py), the fluid box and
+the CG's exit flag every few iterations (core/pressure.py), the solve's cell counts, one read-back at the
+end; `count_host_reads` counts them, docs/host_syncs.md lists them.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
@@ -45,6 +47,8 @@ TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
 # Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
 # only per-step argument (colliders pass the time: not these; unknown stages: not these).
 GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
+# Hooks at which stages write grid arrays (anywhere): with any of them the grid stages cover the whole grid.
+GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
 @dataclass
@@ -99,6 +103,8 @@ class Simulation:
         self._capturing = False
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
+        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
+        self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
         self._seed()
 
     def _init_geometry(self):
@@ -194,6 +200,7 @@ class Simulation:
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
             self.particles_to_grid()
+            self.region.update(self.particles)  # one read: the box the grid stages cover
             self._run("after_p2g", dt)  # gas sums
         with self.timer("grid"):
             self._grid_velocity_and_cells(dt)
@@ -231,6 +238,7 @@ class Simulation:
         if not self.device.is_cuda or any(s.name not in GRAPH_STAGES for s in self.stages):
             return self.step(dt)
         f = self.fields
+        self.region.whole_grid()  # its box is read on the host: not inside a graph
         self._run("begin_step", dt)
         with self.timer("graph: p2g .. system"):
             self._replay("pre", dt, lambda: (self.particles_to_grid(), self._run("after_p2g", dt),
@@ -250,7 +258,7 @@ class Simulation:
         face lists the stretch swaps (viscosity, extend) are set as the capture left them."""
         f, p = self.fields, self.particles
         lists = [a for a in (f.vel, f.vel_tmp, f.valid, f.valid_tmp, f.gas_vel, f.gas_valid) if a is not None]
-        key = (name, dt, p.count, p.x.ptr, tuple(a.ptr for arrays in lists for a in arrays))
+        key = (name, dt, p.count, p.x.ptr, self.region.box, tuple(a.ptr for arrays in lists for a in arrays))
         if key not in self._graphs:
             if len(self._graphs) >= 8:  # dt changes: keep only recent graphs
                 self._graphs.clear()
@@ -278,31 +286,31 @@ class Simulation:
                     [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
 
     def _grid_velocity_and_cells(self, dt: float):
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch(gk.momentum_to_velocity, g.face_shape(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a]])
+            self.launch(gk.momentum_to_velocity, r.faces(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a], r.lo])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
-        self.launch(gk.classify_cells, g.cells,
+        self.launch(gk.classify_cells, r.cells,
                     [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
-                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types])
+                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, r.lo])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         for a in g.axes:
-            self.launch(gk.zero_solid_faces, g.face_shape(a), [f.types, a, f.vel[a]])
-            self.launch(gk.face_inverse_density, g.face_shape(a),
+            self.launch(gk.zero_solid_faces, r.faces(a), [f.types, a, f.vel[a], r.lo])
+            self.launch(gk.face_inverse_density, r.faces(a),
                         [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume, self.two_phase,
-                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a]])
+                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a], r.lo])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        self.launch(gk.pressure_diagonal_and_rhs, g.cells,
+        self.launch(gk.pressure_diagonal_and_rhs, r.cells,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                      self.two_phase, self.interface, g.dx, dt, g.dim, self.scene.solver.volume_correction,
-                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters])
+                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, r.lo])
 
     def _solve_pressure(self, dt: float):
-        g, f, settings = self.grid, self.fields, self.scene.solver
+        g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
         n_fluid, n_pinned, bad = (int(c) for c in self.read_host(f.counters))
         if bad:
@@ -315,22 +323,23 @@ class Simulation:
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
             preconditioner=settings.preconditioner, singular=n_pinned == 0, n_fluid=n_fluid,
+            region=r.box if r.enabled else None,
         )
         self.stats.record(info)
         for a in g.axes:
-            self.launch(gk.subtract_pressure_gradient, g.face_shape(a),
-                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
+            self.launch(gk.subtract_pressure_gradient, r.faces(a),
+                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], r.lo])
 
     def extend(self, vel, valid):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
         then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
-        g, f = self.grid, self.fields
+        g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
-                self.launch(gk.extrapolate_velocity, g.face_shape(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a]])
+                self.launch(gk.extrapolate_velocity, r.faces(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], r.lo])
                 vel[a], f.vel_tmp[a] = f.vel_tmp[a], vel[a]
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
-            self.launch(gk.enforce_walls, g.face_shape(a), [f.types, a, vel[a]])
+            self.launch(gk.enforce_walls, r.faces(a), [f.types, a, vel[a], r.lo])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
 

@@ -1,0 +1,103 @@
+"""The box of the grid that the step's grid stages cover (issue #13: cost in proportion to the liquid).
+
+After p2g, one kernel takes the bounding box of the cells that hold an active particle; the host
+reads it (6 ints, the step's one read for it) to size the grid stages' launches. Every grid value
+that the particles influence lies within BOX_MARGIN cells of that box: the splat reaches 2 cells,
+the hole-filling fluid classification 1 more, the projection trusts the faces of fluid cells and
+extrapolation adds EXTRAPOLATION_LAYERS layers, and each kernel reads one neighbour further. Outside
+it every grid array holds its empty-state value (no mass, EMPTY or wall cells, zero velocity and
+pressure, nothing valid), which depends on nothing that changes in time.
+
+The launches cover this step's box united with the previous step's, so the cells that the liquid
+just left are reset to the empty state, and cells outside both were last written while outside the
+box, i.e. already hold it. The grid arrays therefore equal those of whole-grid launches bit for bit
+(tests/test_active_region.py). Scenes whose optional stages write grid arrays at the grid hooks keep
+whole-grid launches (`Simulation` decides), since their kernels may write anywhere.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+BOX_MARGIN = 4  # cells around the particles' cells: 3 needed (docstring), 1 spare
+
+
+@wp.kernel
+def reset_bounds(box: wp.array(dtype=wp.int32)):
+    t = wp.tid()
+    if t < 3:
+        box[t] = 2147483647
+    else:
+        box[t] = -1
+
+
+@wp.kernel
+def particle_cell_bounds(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), origin: wp.vec3, inv_dx: float,
+                         shape: wp.vec3i, box: wp.array(dtype=wp.int32)):
+    """box[0:3], box[3:6] = smallest and largest cell (clamped to the arrays) of an active particle."""
+    p = wp.tid()
+    if active[p] == 0:
+        return
+    for a in range(3):
+        c = wp.clamp(int(wp.floor((x[p][a] - origin[a]) * inv_dx)), 0, shape[a] - 1)
+        wp.atomic_min(box, a, c)
+        wp.atomic_max(box, 3 + a, c)
+
+
+def union(a, b):
+    if a[0] == a[1]:
+        return b
+    if b[0] == b[1]:
+        return a
+    return (tuple(map(min, a[0], b[0])), tuple(map(max, a[1], b[1])))
+
+
+class ActiveRegion:
+    """The grid stages' launch box: `lo` (wp.vec3i, the kernels' offset), `cells` and `faces(axis)` the
+    launch dims. Disabled (`enabled=False`): the whole grid, and `update` reads nothing."""
+
+    def __init__(self, grid, device, enabled: bool = True, margin: int = BOX_MARGIN):
+        self.shape, self.device, self.enabled, self.margin = tuple(grid.cells), device, enabled, margin
+        self.origin, self.inv_dx = wp.vec3(*grid.origin), 1.0 / grid.dx
+        self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
+        self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
+        self.host_reads = 0
+        self._set(self.previous)
+
+    def _set(self, box):
+        self.box = box
+        self.lo = wp.vec3i(*box[0])
+        self.cells = tuple(h - l for l, h in zip(*box))  # noqa: E741
+
+    def faces(self, axis: int) -> tuple[int, int, int]:
+        """Launch dims over the faces normal to `axis` of the box's cells (one more along axis)."""
+        if 0 in self.cells:
+            return self.cells
+        return tuple(n + (a == axis) for a, n in enumerate(self.cells))
+
+    def whole_grid(self):
+        """From now on the whole grid (a captured CUDA graph cannot read the box on the host)."""
+        self.enabled = False
+        self.previous = ((0, 0, 0), self.shape)
+        self._set(self.previous)
+
+    def update(self, particles):
+        """This step's box from the particles (after p2g), united with the previous step's."""
+        if not self.enabled:
+            return
+        wp.launch(reset_bounds, 6, inputs=[self.bounds], device=self.device)
+        if particles.count:
+            wp.launch(particle_cell_bounds, particles.count, device=self.device,
+                      inputs=[particles.x, particles.active, self.origin, self.inv_dx, wp.vec3i(*self.shape),
+                              self.bounds])
+        b = self.bounds.numpy()
+        self.host_reads += 1
+        if b[3] < 0:  # no active particle
+            current = ((0, 0, 0), (0, 0, 0))
+        else:
+            current = (tuple(max(int(b[a]) - self.margin, 0) for a in range(3)),
+                       tuple(min(int(b[3 + a]) + 1 + self.margin, self.shape[a]) for a in range(3)))
+        self._set(union(current, self.previous))
+        self.previous = current

@@ -171,15 +171,20 @@ def convergence(values: list[float], ratios: list[float]) -> dict:
     d = [b - a for a, b in zip(values, values[1:])]
     orders = [math.log(abs(d0) / abs(d1)) / math.log(r) if d0 and d1 else float("nan")
               for d0, d1, r in zip(d, d[1:], ratios[1:])]
-    out = {"differences": d, "orders": orders, "shrinking": all(abs(b) < abs(a) for a, b in zip(d, d[1:]))}
+    shrinking = all(abs(b) < abs(a) for a, b in zip(d, d[1:]))
+    # "barely": every difference smaller than the last, but by less than r^0.5 (order < 0.5)
+    verdict = "no" if not shrinking else "barely" if orders and min(orders) < 0.5 else "yes"
+    out = {"differences": d, "orders": orders, "shrinking": shrinking, "verdict": verdict}
     if orders and 0.5 <= orders[-1] <= 4 and d[-1] * d[-2] > 0:  # monotone, a plausible order: Richardson
         out["richardson"] = values[-1] + d[-1] / (ratios[-1] ** orders[-1] - 1.0)
     return out
 
 
 def git_describe() -> str:
+    """The last commit that changed the solver (diagnostics.py only measures), and whether it is dirty."""
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+        sha = subprocess.run(["git", "log", "-1", "--format=%h", "--", "warp_mpm_bubbles",
+                              ":!warp_mpm_bubbles/diagnostics.py"], cwd=ROOT, capture_output=True,
                              text=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--", "warp_mpm_bubbles"], cwd=ROOT,
                                capture_output=True, text=True).stdout.strip()
@@ -218,7 +223,7 @@ def fmt(x, digits=4):
 
 
 def markdown(rep: dict) -> str:
-    lines = [f"# Convergence study ({rep['date']}, code {rep['code']})", "", f"`{rep['command']}`", ""]
+    lines = [f"# Convergence study ({rep['date']}, solver at {rep['code']})", "", f"`{rep['command']}`", ""]
     for key, e in rep["cases"].items():
         lv = e["levels"]
         lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", "",
@@ -229,7 +234,7 @@ def markdown(rep: dict) -> str:
                 if "reference" in d else ""
             lines.append(f"| {m} | " + " | ".join(fmt(v) for v in d["values"]) + " | "
                          + ", ".join(fmt(x, 2) for x in d["differences"]) + " | "
-                         + ("yes" if d["shrinking"] else "**no**") + " | "
+                         + {"yes": "yes", "barely": "barely", "no": "**no**"}[d["verdict"]] + " | "
                          + ", ".join(fmt(x, 2) for x in d["orders"]) + " | " + fmt(d.get("richardson")) + f" | {ref} |")
         lines += ["| wall s | " + " | ".join(f"{w:.0f}" for w in e["wall_s"]) + " |" * 6,
                   "| steps | " + " | ".join(map(str, e["steps"])) + " |" * 6,
@@ -288,7 +293,7 @@ def main(argv=None) -> int:
         t_end = args.t_end or (case.quick_t_end if args.quick else case.t_end)
         for res in levels:
             r = run_one(case, res, t_end, wp.get_device(args.device))
-            r["command"] = " ".join(sys.argv)
+            r["command"], r["code"] = " ".join(sys.argv), git_describe()
             (run_dir / f"{key}_{res}.json").write_text(json.dumps(r, indent=1))
             print(f"{key} {res}: {r['wall_s']:.0f} s, {r['steps']} steps, {r['summary']}", flush=True)
     runs = [json.loads(p.read_text()) for p in sorted(run_dir.glob("*.json"))]

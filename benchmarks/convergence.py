@@ -1,11 +1,12 @@
-"""Grid convergence of a rising bubble (issue #12): a closed, filled tank in 2D and 3D against the
-published benchmarks, and the free-surface rising bubble of accuracy_vs_time.py against itself.
+"""Grid convergence of a rising bubble (issue #12): a closed, filled tank in 2D against Hysing et al.'s
+published benchmark and in 3D against itself, and the free-surface rising bubble of
+accuracy_vs_time.py against itself.
 
-    python benchmarks/convergence.py                      # full study, CPU (docs/convergence.md gives the time)
-    python benchmarks/convergence.py --quick              # smaller grids, t_end 1 s: minutes
-    python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80
+    python benchmarks/convergence.py                      # full study: 33 min on 2 shared CPU cores
+    python benchmarks/convergence.py --quick              # smaller grids, shorter runs: 3.4 min
+    python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
     python benchmarks/convergence.py --report-only        # re-render from the saved runs
-    python benchmarks/convergence.py --device cuda:0 --cases adelsberger_3d --resolutions 16,24,32
+    python benchmarks/convergence.py --device cuda:0 --cases adelsberger_3d --resolutions 18,27,40
 
 Cases (docs/convergence.md explains the mapping):
 - hysing_2d: Hysing et al. 2009, test case 1: a 1 x 2 tank, no-slip top and bottom, free-slip sides,
@@ -19,12 +20,13 @@ Cases (docs/convergence.md explains the mapping):
   (sigma 0.072, inviscid) in a 0.08 x 0.16 m tank filled to 0.14 m; no published reference: the
   successive differences and the observed order are the result.
 
-Per run, sampled 60 times: gas centroid, rise speed (volume-weighted mean gas velocity, Hysing's
-definition), circularity / sphericity (diagnostics.gas_shape), the gas contour's area / volume over
-the gas particles' (diagnostics.field_shape unsmoothed), void cells (diagnostics.void_cells); wall
-time. Each run is saved on its own (benchmarks/results/convergence_runs/), so cases and resolutions
-can be run separately and the report merges what is there. Writes benchmarks/results/
-convergence{,_quick}.{json,csv,md} and docs/convergence{,_quick}.png (quick: into results/).
+Per run, sampled 60 times: gas centroid, rise speed (the centroid's rate of change; the gas
+particles' mean velocity too), circularity / sphericity (diagnostics.gas_shape), the gas contour's
+area / volume over the gas particles' (diagnostics.field_shape unsmoothed), void cells
+(diagnostics.void_cells); wall time. Each run is saved on its own (benchmarks/results/
+convergence_runs/<case>_<resolution>.json, replaced when rerun), so cases and resolutions can be run
+separately and the report merges what is there. Writes benchmarks/results/convergence.{json,csv,md}
+and docs/convergence.png (--quick: benchmarks/results/convergence_quick*).
 """
 
 from __future__ import annotations
@@ -203,6 +205,7 @@ def report(runs: list[dict], command: str) -> dict:
         levels = [r["resolution"] for r in mine]
         ratios = [b / a for a, b in zip(levels, levels[1:])]
         entry = {"levels": levels, "unit": case.unit, "wall_s": [r["wall_s"] for r in mine],
+                 "code": [r.get("code", "b8f0711") for r in mine],  # runs before the field: the baseline
                  "steps": [r["steps"] for r in mine], "particles": [r["particles"] for r in mine],
                  "t_end": mine[-1]["t_end"], "metrics": {}}
         for m in METRICS:
@@ -226,8 +229,11 @@ def markdown(rep: dict) -> str:
     lines = [f"# Convergence study ({rep['date']}, solver at {rep['code']})", "", f"`{rep['command']}`", ""]
     for key, e in rep["cases"].items():
         lv = e["levels"]
-        lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", "",
-                  "| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | observed order | "
+        mixed = len(set(e["code"])) > 1
+        lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", ""]
+        lines += [f"**Runs from different solver versions: {', '.join(e['code'])}.** Re-run them all.", ""] \
+            if mixed else []
+        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | observed order | "
                   "Richardson | reference |", "|---|" + "---:|" * (len(lv) + 5)]
         for m, d in e["metrics"].items():
             ref = f"{d['reference']:g} (errors {', '.join(f'{100 * x:+.1f}%' for x in d['error'])})" \

@@ -1,4 +1,4 @@
-"""The phase-leak metric on hand-made particle sets whose answer is known."""
+"""Diagnostics on hand-made particle sets and analytic shapes whose answer is known."""
 
 import numpy as np
 import pytest
@@ -116,7 +116,7 @@ def coverage(inside, n, dim, sub=None):
 
 
 def ellipse_perimeter(a, b):
-    h = ((a - b) / (a + b)) ** 2  # Ramanujan's second approximation: relative error ~3e-9 here
+    h = ((a - b) / (a + b)) ** 2  # Ramanujan's second approximation: error below 1e-9 here
     return np.pi * (a + b) * (1 + 3 * h / (10 + np.sqrt(4 - 3 * h)))
 
 

@@ -289,13 +289,20 @@ def main(argv=None) -> int:
     tag = "convergence_quick" if args.quick else "convergence"
     run_dir = RESULTS / f"{tag}_runs"
     run_dir.mkdir(parents=True, exist_ok=True)
-    for key in args.cases.split(",") if not args.report_only else []:
+    keys = [] if args.report_only else args.cases.split(",")
+    for key in keys:
         if key not in CASES:
             print(f"--cases: unknown case {key!r}; choose from {', '.join(CASES)}", file=sys.stderr)
             return 2
+    for key in keys:
         case = CASES[key]
-        levels = [int(x) for x in args.resolutions.split(",")] if args.resolutions else \
-            (case.quick_levels if args.quick else case.levels)
+        try:
+            levels = [int(x) for x in args.resolutions.split(",")] if args.resolutions else \
+                (case.quick_levels if args.quick else case.levels)
+        except ValueError:
+            print(f"--resolutions: expected whole numbers separated by commas ({case.unit}), e.g. 20,40,80; "
+                  f"got {args.resolutions!r}", file=sys.stderr)
+            return 2
         t_end = args.t_end or (case.quick_t_end if args.quick else case.t_end)
         for res in levels:
             r = run_one(case, res, t_end, wp.get_device(args.device))

@@ -1,0 +1,331 @@
+"""Grid convergence of a rising bubble (issue #12): a closed, filled tank in 2D against Hysing et al.'s
+published benchmark and in 3D against itself, and the free-surface rising bubble of
+accuracy_vs_time.py against itself.
+
+    python benchmarks/convergence.py                      # full study: 33 min on 2 shared CPU cores
+    python benchmarks/convergence.py --quick              # smaller grids, shorter runs: 3.4 min
+    python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
+    python benchmarks/convergence.py --report-only        # re-render from the saved runs
+    python benchmarks/convergence.py --device cuda:0 --cases adelsberger_3d --resolutions 18,27,40
+
+Cases (docs/convergence.md explains the mapping):
+- hysing_2d: Hysing et al. 2009, test case 1: a 1 x 2 tank, no-slip top and bottom, free-slip sides,
+  a bubble of radius 0.25 at (0.5, 0.5); rho 1000 / 100, mu 10 / 1, sigma 24.5, g 0.98, t_end 3
+  (Re 35, Eo 10). Run with every density, viscosity and sigma divided by 10 (sigma 2.45 fits
+  [materials].surface_tension <= 3): the same Re, Eo and ratios, so the same motion in the same
+  seconds and metres; pressures are 10x smaller. Gas law "incompressible" (density ratio only).
+- adelsberger_3d: the 3D analogue (Adelsberger et al. 2014): a 1 x 2 x 1 box, all walls no-slip,
+  radius 0.25 at (0.5, 0.5, 0.5), the same fluids and scaling.
+- free_surface_2d: accuracy_vs_time.py's rising bubble: a 2 cm air bubble (isothermal gas) in water
+  (sigma 0.072, inviscid) in a 0.08 x 0.16 m tank filled to 0.14 m; no published reference: the
+  successive differences and the observed order are the result.
+
+Per run, sampled 60 times: gas centroid, rise speed (the centroid's rate of change; the gas
+particles' mean velocity too), circularity / sphericity (diagnostics.gas_shape), the gas contour's
+area / volume over the gas particles' (diagnostics.field_shape unsmoothed), void cells
+(diagnostics.void_cells); wall time. Each run is saved on its own (benchmarks/results/
+convergence_runs/<case>_<resolution>.json, replaced when rerun), so cases and resolutions can be run
+separately and the report merges what is there. Writes benchmarks/results/convergence.{json,csv,md}
+and docs/convergence.png (--quick: benchmarks/results/convergence_quick*).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.timing import describe_device
+from warp_mpm_bubbles.diagnostics import field_shape, gas_fraction, void_cells
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+SAMPLES = 60
+SCALE = 0.1  # densities, viscosities and sigma of the benchmark fluids times this: same Re, Eo, motion
+
+
+@dataclass
+class Case:
+    key: str
+    dim: int
+    size: tuple
+    unit: str  # what the resolution counts
+    levels: tuple
+    quick_levels: tuple
+    t_end: float
+    quick_t_end: float
+    reference: dict  # metric -> (value, time or None, source)
+
+
+HYSING = "Hysing et al. 2009, Int. J. Numer. Meth. Fluids 60:1259, test case 1 (TP2D/FreeLIFE/MooNMD)"
+CASES = {c.key: c for c in [
+    Case("hysing_2d", 2, (1.0, 2.0), "cells across", (20, 40, 80), (10, 20, 40), 3.0, 1.0,
+         {"circularity_min": (0.9013, 1.9, HYSING), "rise_speed_max": (0.2417, 0.92, HYSING),
+          "centroid_end": (1.081, 3.0, HYSING)}),
+    Case("adelsberger_3d", 3, (1.0, 2.0, 1.0), "cells across", (12, 18, 27), (8, 12, 16), 3.0, 1.0, {}),
+    Case("free_surface_2d", 2, (0.08, 0.16), "cells per radius", (4, 8, 16), (3, 6, 12), 0.15, 0.08, {}),
+]}
+
+
+def scene(case: Case, res: int, tmp: str) -> Scene:
+    if case.key == "free_surface_2d":
+        r = 0.01
+        return Scene(domain=Domain(size=case.size, cell_size=r / res),
+                     materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
+                     shapes=[Box("water", (0.0, 0.0), (0.08, 0.14)), Sphere("air", (0.04, 0.03), r)],
+                     solver=SolverSettings(), output=Output(path=f"{tmp}/c.usdc"), name=case.key)
+    dim = case.dim
+    walls = "no_slip" if dim == 3 else {"x_min": "free_slip", "x_max": "free_slip", "y_min": "no_slip",
+                                        "y_max": "no_slip"}
+    fluids = {"liquid": Material("liquid", density=1000 * SCALE, viscosity=10 * SCALE, surface_tension=24.5 * SCALE),
+              "bubble": Material("bubble", kind="gas", density=100 * SCALE, viscosity=1 * SCALE,
+                                 eos="incompressible")}
+    return Scene(domain=Domain(size=case.size, cell_size=1.0 / res, walls=walls,
+                               gravity=(0.0, -0.98, 0.0)[:dim]),
+                 materials=fluids,
+                 shapes=[Box("liquid", (0.0,) * dim, case.size), Sphere("bubble", (0.5, 0.5, 0.5)[:dim], 0.25)],
+                 solver=SolverSettings(), output=Output(path=f"{tmp}/c.usdc"), name=case.key)
+
+
+def sample(sim: Simulation, gas_index: int) -> dict:
+    p = sim.particles_numpy()
+    g = p["material"] == gas_index
+    dim, dx, cells = sim.grid.dim, sim.grid.dx, sim.grid.cells
+    v = p["volume"][g] / (dx if dim == 2 else 1.0)  # 2D: a slab one cell thick, so areas
+    centroid = (p["positions"][g, :dim] * v[:, None]).sum(0) / v.sum()
+    speed = float((p["velocities"][g, 1] * v).sum() / v.sum())
+    frac = gas_fraction(p["positions"], g, p["volume"], dx, cells, dim)
+    shape = field_shape(frac, dx, smooth=1)
+    enclosed = field_shape(frac, dx, smooth=0)["area" if dim == 2 else "volume"]
+    return {"t": sim.time, "centroid_y": float(centroid[1]), "particle_speed": speed,
+            "roundness": shape["circularity" if dim == 2 else "sphericity"],
+            "gas_region_ratio": enclosed / float(v.sum()),
+            "voids": void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up), "steps": sim.stats.steps}
+
+
+def run_one(case: Case, res: int, t_end: float, device) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = Simulation(scene(case, res, tmp), device)
+        gas_index = [m.is_gas for m in sim.scene.materials.values()].index(True)
+        series = [sample(sim, gas_index)]
+        wall = 0.0
+        for k in range(1, SAMPLES + 1):
+            start = time.perf_counter()
+            sim.advance_to(t_end * k / SAMPLES)
+            wall += time.perf_counter() - start
+            series.append(sample(sim, gas_index))
+            s = series[-1]
+            print(f"  {case.key} {res}: t {s['t']:.3f} y {s['centroid_y']:.4f} v {s['particle_speed']:.4f} "
+                  f"round {s['roundness']:.4f} voids {s['voids']} ({wall:.0f} s)", file=sys.stderr, flush=True)
+        return {"case": case.key, "resolution": res, "t_end": t_end, "dx": sim.grid.dx,
+                "particles": sim.num_particles, "steps": sim.stats.steps, "wall_s": wall,
+                "device": describe_device(device), "series": series, "summary": summarize(series)}
+
+
+def centroid_speed(series: list[dict]) -> np.ndarray:
+    """Rise speed as the centroid's rate of change (central differences over the samples): Hysing's
+    mean bubble velocity averaged over +-1 sample (0.05 s at t_end 3), which an MPM particle velocity
+    field, noisy from step to step, needs; the particles' own mean is kept in the series."""
+    return np.gradient([s["centroid_y"] for s in series], [s["t"] for s in series])
+
+
+def summarize(series: list[dict]) -> dict:
+    t = np.array([s["t"] for s in series])
+    col = {k: np.array([s[k] for s in series]) for k in ("centroid_y", "roundness", "gas_region_ratio", "voids")}
+    col["rise_speed"] = centroid_speed(series)
+    col["particle_speed"] = np.array([s.get("particle_speed", s.get("rise_speed")) for s in series])
+    i_v, i_r = int(col["rise_speed"].argmax()), int(col["roundness"][1:].argmin()) + 1
+    return {"rise_speed_max": float(col["rise_speed"][i_v]), "t_rise_speed_max": float(t[i_v]),
+            "particle_speed_max": float(col["particle_speed"].max()),
+            "rise_speed_end": float(col["rise_speed"][-1]),
+            # over the last two thirds (free_surface_2d: accuracy_vs_time.py's 0.05-0.15 s window)
+            "rise_speed_mean_late": float((col["centroid_y"][-1] - col["centroid_y"][len(t) // 3])
+                                          / (t[-1] - t[len(t) // 3])), "centroid_end": float(col["centroid_y"][-1]),
+            "roundness_min": float(col["roundness"][i_r]), "t_roundness_min": float(t[i_r]),
+            "gas_region_ratio_end": float(col["gas_region_ratio"][-1]),
+            # against the perfectly seeded bubble at t = 0: the contour's own bias at this grid cancels
+            "gas_region_change_end": float(col["gas_region_ratio"][-1] / col["gas_region_ratio"][0] - 1.0),
+            "voids_max": int(col["voids"].max())}
+
+
+METRICS = ["rise_speed_max", "t_rise_speed_max", "particle_speed_max", "rise_speed_end", "rise_speed_mean_late",
+           "centroid_end", "roundness_min", "t_roundness_min", "gas_region_ratio_end", "gas_region_change_end",
+           "voids_max"]
+REF_KEY = {"rise_speed_max": "rise_speed_max", "centroid_end": "centroid_end", "roundness_min": "circularity_min"}
+
+
+def convergence(values: list[float], ratios: list[float]) -> dict:
+    """Successive differences and the observed order p = log(d_k / d_k+1) / log(r_k+1), the refinement
+    ratio r between the two finer levels (equal ratios give the textbook log2 form for r = 2)."""
+    d = [b - a for a, b in zip(values, values[1:])]
+    orders = [math.log(abs(d0) / abs(d1)) / math.log(r) if d0 and d1 else float("nan")
+              for d0, d1, r in zip(d, d[1:], ratios[1:])]
+    shrinking = all(abs(b) < abs(a) for a, b in zip(d, d[1:]))
+    # "barely": every difference smaller than the last, but by less than r^0.5 (order < 0.5)
+    verdict = "no" if not shrinking else "barely" if orders and min(orders) < 0.5 else "yes"
+    out = {"differences": d, "orders": orders, "shrinking": shrinking, "verdict": verdict}
+    if orders and 0.5 <= orders[-1] <= 4 and d[-1] * d[-2] > 0:  # monotone, a plausible order: Richardson
+        out["richardson"] = values[-1] + d[-1] / (ratios[-1] ** orders[-1] - 1.0)
+    return out
+
+
+def git_describe() -> str:
+    """The last commit that changed the solver (diagnostics.py only measures), and whether it is dirty."""
+    try:
+        sha = subprocess.run(["git", "log", "-1", "--format=%h", "--", "warp_mpm_bubbles",
+                              ":!warp_mpm_bubbles/diagnostics.py"], cwd=ROOT, capture_output=True,
+                             text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "warp_mpm_bubbles"], cwd=ROOT,
+                               capture_output=True, text=True).stdout.strip()
+        return sha + (" (+ uncommitted changes to warp_mpm_bubbles)" if dirty else "")
+    except OSError:
+        return "unknown"
+
+
+def report(runs: list[dict], command: str) -> dict:
+    out = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+           "code": git_describe(), "command": command, "cases": {}}
+    for key, case in CASES.items():
+        mine = sorted((r for r in runs if r["case"] == key), key=lambda r: r["resolution"])
+        if not mine:
+            continue
+        levels = [r["resolution"] for r in mine]
+        ratios = [b / a for a, b in zip(levels, levels[1:])]
+        entry = {"levels": levels, "unit": case.unit, "wall_s": [r["wall_s"] for r in mine],
+                 "code": [r.get("code", "b8f0711") for r in mine],  # runs before the field: the baseline
+                 "steps": [r["steps"] for r in mine], "particles": [r["particles"] for r in mine],
+                 "t_end": mine[-1]["t_end"], "metrics": {}}
+        for m in METRICS:
+            vals = [summarize(r["series"])[m] for r in mine]  # from the series: metrics can change later
+            entry["metrics"][m] = {"values": vals, **convergence(vals, ratios)}
+            ref = case.reference.get(REF_KEY.get(m, ""))
+            if ref and mine[-1]["t_end"] >= case.t_end:
+                entry["metrics"][m]["reference"] = ref[0]
+                entry["metrics"][m]["error"] = [v / ref[0] - 1 for v in vals]
+                entry["metrics"][m]["source"] = ref[2]
+        out["cases"][key] = entry
+    return out
+
+
+def fmt(x, digits=4):
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else (
+        f"{x:d}" if isinstance(x, int) else f"{x:.{digits}g}")
+
+
+def markdown(rep: dict) -> str:
+    lines = [f"# Convergence study ({rep['date']}, solver at {rep['code']})", "", f"`{rep['command']}`", ""]
+    for key, e in rep["cases"].items():
+        lv = e["levels"]
+        mixed = len(set(e["code"])) > 1
+        lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", ""]
+        lines += [f"**Runs from different solver versions: {', '.join(e['code'])}.** Re-run them all.", ""] \
+            if mixed else []
+        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | observed order | "
+                  "Richardson | reference |", "|---|" + "---:|" * (len(lv) + 5)]
+        for m, d in e["metrics"].items():
+            ref = f"{d['reference']:g} (errors {', '.join(f'{100 * x:+.1f}%' for x in d['error'])})" \
+                if "reference" in d else ""
+            lines.append(f"| {m} | " + " | ".join(fmt(v) for v in d["values"]) + " | "
+                         + ", ".join(fmt(x, 2) for x in d["differences"]) + " | "
+                         + {"yes": "yes", "barely": "barely", "no": "**no**"}[d["verdict"]] + " | "
+                         + ", ".join(fmt(x, 2) for x in d["orders"]) + " | " + fmt(d.get("richardson")) + f" | {ref} |")
+        lines += ["| wall s | " + " | ".join(f"{w:.0f}" for w in e["wall_s"]) + " |" * 6,
+                  "| steps | " + " | ".join(map(str, e["steps"])) + " |" * 6,
+                  "| particles | " + " | ".join(map(str, e["particles"])) + " |" * 6, ""]
+    return "\n".join(lines)
+
+
+def plot(runs: list[dict], path: Path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [k for k in CASES if any(r["case"] == k for r in runs)]
+    fig, axes = plt.subplots(len(keys), 3, figsize=(13, 3.2 * len(keys)), squeeze=False)
+    for row, key in zip(axes, keys):
+        case = CASES[key]
+        for r in sorted((r for r in runs if r["case"] == key), key=lambda r: r["resolution"]):
+            s = r["series"]
+            t = [x["t"] for x in s]
+            for ax, y in zip(row, (centroid_speed(s), [x["centroid_y"] for x in s], [x["roundness"] for x in s])):
+                ax.plot(t, y, label=f"{r['resolution']} {case.unit}")
+        for ax, m, ref in zip(row, ("rise speed", "centroid y", "circularity" if case.dim == 2 else "sphericity"),
+                              ("rise_speed_max", "centroid_end", "circularity_min")):
+            ax.set_title(f"{key}: {m}", fontsize=9)
+            ax.set_xlabel("t (s)")
+            if ref in case.reference and case.reference[ref][1] is not None:
+                value, when, _ = case.reference[ref]
+                ax.plot([when], [value], "k*", ms=10, label="published")
+            elif ref in case.reference:
+                ax.axhline(case.reference[ref][0], color="k", ls=":", label="published max")
+        row[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--resolutions", default=None, help="comma list (default: the case's levels)")
+    ap.add_argument("--quick", action="store_true", help="smaller grids and a shorter t_end")
+    ap.add_argument("--t-end", type=float, default=None)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--report-only", action="store_true", help="no runs: re-render from the saved ones")
+    args = ap.parse_args(argv)
+    wp.config.quiet = True
+    tag = "convergence_quick" if args.quick else "convergence"
+    run_dir = RESULTS / f"{tag}_runs"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    keys = [] if args.report_only else args.cases.split(",")
+    for key in keys:
+        if key not in CASES:
+            print(f"--cases: unknown case {key!r}; choose from {', '.join(CASES)}", file=sys.stderr)
+            return 2
+    for key in keys:
+        case = CASES[key]
+        try:
+            levels = [int(x) for x in args.resolutions.split(",")] if args.resolutions else \
+                (case.quick_levels if args.quick else case.levels)
+        except ValueError:
+            print(f"--resolutions: expected whole numbers separated by commas ({case.unit}), e.g. 20,40,80; "
+                  f"got {args.resolutions!r}", file=sys.stderr)
+            return 2
+        t_end = args.t_end or (case.quick_t_end if args.quick else case.t_end)
+        for res in levels:
+            r = run_one(case, res, t_end, wp.get_device(args.device))
+            r["command"], r["code"] = " ".join(sys.argv), git_describe()
+            (run_dir / f"{key}_{res}.json").write_text(json.dumps(r, indent=1))
+            print(f"{key} {res}: {r['wall_s']:.0f} s, {r['steps']} steps, {r['summary']}", flush=True)
+    runs = [json.loads(p.read_text()) for p in sorted(run_dir.glob("*.json"))]
+    rep = report(runs, "python benchmarks/convergence.py " + " ".join(sys.argv[1:]))
+    (RESULTS / f"{tag}.json").write_text(json.dumps(rep, indent=1))
+    md = markdown(rep)
+    (RESULTS / f"{tag}.md").write_text(md)
+    with open(RESULTS / f"{tag}.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        keys = ("t", "centroid_y", "particle_speed", "roundness", "gas_region_ratio", "voids", "steps")
+        w.writerow(["case", "resolution", *keys, "rise_speed"])
+        for r in runs:
+            speed = centroid_speed(r["series"])
+            for s, v in zip(r["series"], speed):
+                w.writerow([r["case"], r["resolution"], *(s.get(k, s.get("rise_speed")) for k in keys), v])
+    plot(runs, (RESULTS if args.quick else ROOT / "docs") / f"{tag}.png")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -78,8 +78,9 @@ def step_limits(scene) -> dict[str, float]:
         rho = max((m.density for m in liquids), default=0.0) + max((m.density for m in mats if m.is_gas), default=0.0)
         limits["capillary"] = math.sqrt(rho * dx**3 / (4.0 * math.pi * sigma))
     nu = max((m.viscosity / m.density for m in mats if m.kind != "foam"), default=0.0)
-    if nu > 0.0:
-        limits["viscous"] = dx**2 / (2 * dim * nu)
+    visc = scene.effects.get("viscosity")
+    if nu > 0.0 and getattr(visc, "solver", "auto") == "explicit":  # auto and implicit need no extra steps
+        limits["viscous"] = dx**2 / (4 * dim * nu)  # the stress form's grad div doubles the Laplacian's rate
     if s.max_dt is not None:
         limits["max_dt"] = s.max_dt
     return limits

@@ -1,7 +1,7 @@
 """Explicit vs implicit viscosity side by side, in one process (docs/viscosity.md, "Measured").
 
     python benchmarks/viscous_solver.py --cells 20               # tank to t = 0.29 s and Taylor-Green: ~4 min on the CPU
-    python benchmarks/viscous_solver.py --cells 40 --t-end 0.02 --no-taylor-green --label 40  # ~6 min
+    python benchmarks/viscous_solver.py --cells 40 --t-end 0.05 --no-taylor-green --label 40  # ~2 min
     python benchmarks/viscous_solver.py --cells 20 --t-end 0.1 --max-dt 8e-5 --no-taylor-green --label 20_same_steps  # ~5 min
 
 tank: issue #12's case. A closed 2D tank W x 2W filled with liquid (no-slip top and bottom,

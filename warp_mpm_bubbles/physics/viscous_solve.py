@@ -241,7 +241,7 @@ def pcg_step(alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=floa
              dots: wp.array(dtype=wp.float64)):
     """x += alpha d, r -= alpha A d, z = M^-1 r; dots[1] += r . r, dots[2] += r . z."""
     i, j, k = wp.tid()
-    x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
+    x[i, j, k] = alpha * d[i, j, k] + x[i, j, k]
     res = r[i, j, k] - alpha * Ad[i, j, k]
     zz = float(0.0)
     if diag[i, j, k] > 0.0:

@@ -12,6 +12,8 @@ otherwise. mu of each phase is the largest dynamic viscosity among its materials
 
 import math
 
+import numpy as np
+
 from ..core.stage import Stage
 from ..scene.effects import Viscosity
 from .viscous_solve import ViscousSolver
@@ -31,21 +33,23 @@ class ViscosityStage(Stage):
         # Before the first step's grid exists: each material's own rate, 8 dim nu/dx^2 (4 dim for
         # the Laplacian part, as much again for grad div), so the limit is dx^2 / (4 dim nu).
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
-        self.rate = 8 * sim.grid.dim * nu / sim.grid.dx**2
+        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: host_state.
+        sim.host_state["viscous_rate"] = np.array([8 * sim.grid.dim * nu / sim.grid.dx**2])
         self.solver = ViscousSolver(sim.grid, sim.device)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False
 
-    def explicit_limit(self) -> float:
+    def explicit_limit(self, sim) -> float:
         """Forward Euler's largest stable step on the last grid seen (s)."""
-        return 2.0 / self.rate if self.rate > 0.0 else math.inf
+        rate = float(sim.host_state["viscous_rate"][0])
+        return 2.0 / rate if rate > 0.0 else math.inf
 
     def dt_limit(self, sim) -> float:
         mode = self.settings.solver
         if mode == "implicit" or self._probing:
             return math.inf
-        limit = self.explicit_limit()
+        limit = self.explicit_limit(sim)
         if mode == "explicit":
             return limit
         self._probing = True  # auto: compare with what the other limits allow
@@ -58,8 +62,9 @@ class ViscosityStage(Stage):
     def force(self, sim, dt: float):
         f, s = sim.fields, self.settings
         self.solver.set_viscosity(f.types, f.liq_volume, f.gas_volume, sim.two_phase, self.mu_liquid, self.mu_gas)
-        self.rate = self.solver.prepare(f.types, f.inv_rho, dt)
-        if s.solver == "implicit" or (s.solver == "auto" and dt > self.explicit_limit()):
+        sim.host_state["viscous_rate"] = np.array([self.solver.prepare(f.types, f.inv_rho, dt)])
+        limit = self.explicit_limit(sim)
+        if s.solver == "implicit" or (s.solver == "auto" and dt > limit):
             info = self.solver.implicit(f.types, f.inv_rho, f.vel, dt, s.tolerance, s.max_iterations)
             c = self.counts
             c["implicit_steps"] += 1
@@ -68,7 +73,7 @@ class ViscosityStage(Stage):
             c["pcg_unconverged"] += 0 if info.converged else 1
             return
         # Explicit. Its limit came from the last step's grid; if this grid is stiffer, substep.
-        n = max(1, math.ceil(dt / self.explicit_limit() - 1e-9))
+        n = max(1, math.ceil(dt / limit - 1e-9))
         for _ in range(n):
             self.solver.explicit(f.types, f.inv_rho, f.vel, dt / n)
         self.counts["explicit_steps"] += 1

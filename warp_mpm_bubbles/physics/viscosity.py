@@ -35,7 +35,7 @@ class ViscosityStage(Stage):
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
         # The last grid's rate (1/s) sets the next step, so a resumed run needs it: host_state.
         sim.host_state["viscous_rate"] = np.array([8 * sim.grid.dim * nu / sim.grid.dx**2])
-        self.solver = ViscousSolver(sim.grid, sim.device)
+        self.solver = ViscousSolver(sim.grid, sim.device, sim.launch)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False

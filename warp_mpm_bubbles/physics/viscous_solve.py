@@ -268,8 +268,10 @@ class ViscousSolver:
     """The stress operator on one grid: viscosities, explicit step, implicit PCG (Jacobi). Scratch
     arrays are allocated once; dot products accumulate in float64 (deterministic on the CPU)."""
 
-    def __init__(self, grid, device):
+    def __init__(self, grid, device, launch=None):
+        """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels."""
         self.grid, self.device = grid, device
+        self._launcher = launch
         self.dim, self.inv_dx = grid.dim, 1.0 / grid.dx
         cells = grid.cells
         zeros = lambda shape: wp.zeros(shape, dtype=float, device=device)  # noqa: E731
@@ -285,7 +287,10 @@ class ViscousSolver:
         self.rate = wp.zeros(1, dtype=float, device=device)
 
     def _launch(self, kernel, shape, inputs):
-        wp.launch(kernel, shape, inputs=inputs, device=self.device)
+        if self._launcher is not None:
+            self._launcher(kernel, shape, inputs)
+        else:
+            wp.launch(kernel, shape, inputs=inputs, device=self.device)
 
     def _planes_of(self, a: int, arrays: dict):
         """The (array, other axis) pairs of the planes through axis a; 2D pads with (first, -1)."""

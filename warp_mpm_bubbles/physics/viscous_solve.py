@@ -94,10 +94,53 @@ def cell_viscosity(types: wp.array3d(dtype=wp.int32), liq_volume: wp.array3d(dty
     mu[i, j, k] = m
 
 
+@wp.func
+def level(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), c: wp.vec3i):
+    """psi = (vl - vg) / (vl + vg): +1 liquid, -1 gas, 0 on the interface."""
+    vl = liq_volume[c[0], c[1], c[2]]
+    vg = gas_volume[c[0], c[1], c[2]]
+    return (vl - vg) / wp.max(vl + vg, 1.0e-30)
+
+
+@wp.func
+def liquid_share(p1: float, p2: float):
+    """Share of the segment between two cell centres on the liquid side, psi linear along it."""
+    if p1 >= 0.0 and p2 >= 0.0:
+        if p1 == 0.0 and p2 == 0.0:
+            return 0.5
+        return 1.0
+    if p1 <= 0.0 and p2 <= 0.0:
+        return 0.0
+    return wp.max(p1, p2) / (wp.abs(p1) + wp.abs(p2))
+
+
+@wp.func
+def edge_liquid_share(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), e: wp.vec3i,
+                      a: int, b: int):
+    """Liquid share of the square between the 4 cell centres around edge e (ghost-fluid style): the
+    segments' shares across the interface, weighted by how much the interface's normal lies along
+    them (psi's gradient), so a layer boundary through a row of centres is placed exactly."""
+    p00 = level(liq_volume, gas_volume, e - unit(a) - unit(b))
+    p10 = level(liq_volume, gas_volume, e - unit(b))
+    p01 = level(liq_volume, gas_volume, e - unit(a))
+    p11 = level(liq_volume, gas_volume, e)
+    ga = p10 + p11 - p00 - p01
+    gb = p01 + p11 - p00 - p10
+    share_a = 0.5 * (liquid_share(p00, p10) + liquid_share(p01, p11))  # segments along a
+    share_b = 0.5 * (liquid_share(p00, p01) + liquid_share(p10, p11))
+    w = ga * ga + gb * gb
+    if w > 1.0e-12:
+        return (ga * ga * share_a + gb * gb * share_b) / w
+    return 0.5 * (share_a + share_b)
+
+
 @wp.kernel
-def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=float), a: int, b: int,
-                   mu: wp.array3d(dtype=float)):
-    """mu on edge e of plane (a, b): harmonic mean of its fluid cells; 0 beside EMPTY or free-slip cells."""
+def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=float),
+                   liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int,
+                   mu_liquid: float, mu_gas: float, a: int, b: int, mu: wp.array3d(dtype=float)):
+    """mu on edge e of plane (a, b): 0 beside EMPTY or free-slip cells (or an inviscid one); with four
+    fluid cells and two viscous phases, the harmonic mix by the edge's own liquid share (so the
+    jump sits where the interface crosses the edge's square); else the harmonic mean of its cells."""
     i, j, k = wp.tid()
     e = wp.vec3i(i, j, k)
     n = int(0)
@@ -118,6 +161,9 @@ def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=
     m_e = float(0.0)
     if stress_free == 0 and n > 0:
         m_e = float(n) / inv_sum
+        if n == 4 and two_phase != 0 and mu_liquid > 0.0 and mu_gas > 0.0:
+            theta = edge_liquid_share(liq_volume, gas_volume, e, a, b)
+            m_e = 1.0 / (theta / mu_liquid + (1.0 - theta) / mu_gas)
     mu[i, j, k] = m_e
 
 
@@ -304,7 +350,8 @@ class ViscousSolver:
         self._launch(cell_viscosity, self.grid.cells,
                      [types, liq_volume, gas_volume, int(two_phase), float(mu_liquid), float(mu_gas), self.mu_cell])
         for (a, b), mu in self.mu_edge.items():
-            self._launch(edge_viscosity, mu.shape, [types, self.mu_cell, a, b, mu])
+            self._launch(edge_viscosity, mu.shape, [types, self.mu_cell, liq_volume, gas_volume, int(two_phase),
+                                                    float(mu_liquid), float(mu_gas), a, b, mu])
 
     def prepare(self, types, inv_rho, dt: float) -> float:
         """The Jacobi diagonal for this dt; returns the explicit rate (1/s): stable for dt <= 2/rate."""

@@ -12,11 +12,13 @@ sum_e 2 mu_e D_ab^2, so K is symmetric positive semi-definite and the implicit s
 faces the pressure acts on (inv_rho > 0); every other face keeps u* (walls, moving colliders).
 
 mu_c mixes the phases by the volume each holds in the cell (harmonic mean; Batty's volume weights
-where one phase is inviscid); mu_e is the harmonic mean of the fluid cells around the edge, because tau_ab is a traction
-component on both planes through the edge and is continuous across the interface (stresses in
-series). An edge beside an EMPTY cell or a free-slip solid carries no stress (free surface, slip);
-beside a no-slip solid the face inside the wall mirrors the fluid face about the wall's velocity
-(the value the wall face holds: 0, or a moving collider's).
+where one phase is inviscid). tau_ab is a traction component on both planes through the edge and
+is continuous across the interface (stresses in series), so mu_e is a harmonic mix too: by the
+liquid share of the edge's own square (psi linear between the cell centres), or the harmonic
+mean of its cells where a neighbour is not fluid. An edge beside an EMPTY cell or a free-slip
+solid carries no stress (free surface, slip); beside a no-slip solid the face inside the wall
+mirrors the fluid face about the wall's velocity (the value the wall face holds: 0, or a moving
+collider's).
 """
 
 from __future__ import annotations

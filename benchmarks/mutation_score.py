@@ -141,14 +141,15 @@ MUTATIONS = [
     ("film_speed_sigma_x0.95", TE, "math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx))",
      "math.sqrt(1.9 * self.sigma / (self.rho_liquid * g.dx))", [BUBBLE3D]),
     ("capillary_dt_limit_x2", TE, "(4.0 * math.pi * self.sigma)", "(1.0 * math.pi * self.sigma)", [STEP, TENSION]),
-    # --- viscosity (diffuse_velocity; moving to physics/viscosity.py: found wherever it is)
-    ("mu_x0.97", TE, "out[i, j, k] = u + dt * nu * lap / (dx * dx)", "out[i, j, k] = u + 0.97 * dt * nu * lap / (dx * dx)",
-     [VISCOSITY]),
-    ("mu_x1.03", TE, "out[i, j, k] = u + dt * nu * lap / (dx * dx)", "out[i, j, k] = u + 1.03 * dt * nu * lap / (dx * dx)",
-     [VISCOSITY]),
-    ("no_slip_mirror_weakened", TE, "lap += -2.0 * u", "lap += -1.0 * u", [VISCOSITY, "tests/test_colliders.py"]),
-    ("viscous_dt_limit_x2", "physics/viscosity.py", "sim.grid.dx**2 / (2 * sim.grid.dim * max(",
-     "sim.grid.dx**2 / (sim.grid.dim * max(", [STEP, VISCOSITY]),
+    # --- viscosity (the stress form, physics/viscosity.py and physics/viscous_solve.py)
+    ("mu_x0.97", "physics/viscosity.py", 'self.mu_liquid = mu([m for m in materials if m.kind == "liquid"])',
+     'self.mu_liquid = 0.97 * mu([m for m in materials if m.kind == "liquid"])', [VISCOSITY]),
+    ("mu_x1.03", "physics/viscosity.py", 'self.mu_liquid = mu([m for m in materials if m.kind == "liquid"])',
+     'self.mu_liquid = 1.03 * mu([m for m in materials if m.kind == "liquid"])', [VISCOSITY]),
+    ("no_slip_mirror_weakened", "physics/viscous_solve.py", "        v_lo = 2.0 * v_lo - v_hi\n",
+     "        v_lo = 2.0 * v_lo - 0.5 * v_hi\n", [VISCOSITY]),
+    ("viscous_dt_limit_x2", "physics/viscosity.py", "return 2.0 / self.rate if self.rate > 0.0",
+     "return 4.0 / self.rate if self.rate > 0.0", [STEP, VISCOSITY]),
     ("cfl_x2", SIM, '"cfl": s.cfl * self.grid.dx / speed', '"cfl": 2.0 * s.cfl * self.grid.dx / speed',
      [STEP, "tests/test_solver.py::test_time_steps_land_on_frames_and_respect_cfl"]),
     # --- effects

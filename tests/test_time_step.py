@@ -1,7 +1,8 @@
 """The time step's limits are the documented formulas exactly (issue #17): CFL with sqrt(|g| dx)
 added to the speed, the capillary limit sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)), and the explicit
-viscous limit dx^2 / (2 dim nu). A limit looser than its formula lets a run go unstable; a stricter
-one only costs time, so each is checked for equality where it is the binding one."""
+viscous limit dx^2 / (4 dim nu) (the stress form; none when the viscosity is implicit). A limit
+looser than its formula lets a run go unstable; a stricter one only costs time, so each is
+checked for equality where it is the binding one."""
 
 import math
 
@@ -10,14 +11,15 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene
 from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.scene.effects import Viscosity
 
 wp.config.quiet = True
 
 
-def at_rest(tmp_path, **water):
+def at_rest(tmp_path, effects=None, **water):
     scene = Scene(domain=Domain(size=(0.04, 0.04), cell_size=0.04 / 16),
                   materials={"water": Material("water", **water)},
-                  shapes=[Box("water", (0.0, 0.0), (0.04, 0.02))],
+                  shapes=[Box("water", (0.0, 0.0), (0.04, 0.02))], effects=effects or {},
                   output=Output(path=str(tmp_path / "s.usdc")))
     return Simulation(scene, "cpu")
 
@@ -37,6 +39,11 @@ def test_capillary_limit(tmp_path):
 
 
 def test_viscous_limit(tmp_path):
-    sim = at_rest(tmp_path, viscosity=1.0)  # nu = 1e-3 m^2/s: dx^2 / (4 nu) = 1.6 ms, binding
+    # nu = 1e-3 m^2/s: the stress form's explicit limit dx^2 / (4 dim nu) = 0.78 ms binds; the
+    # default solver ("auto") goes implicit instead and the CFL limit (8 ms) is left.
+    sim = at_rest(tmp_path, viscosity=1.0, effects={"viscosity": Viscosity(solver="explicit")})
     dx = sim.grid.dx
-    assert sim.stable_dt() == pytest.approx(dx**2 / (2 * 2 * 1e-3), rel=1e-9)
+    assert sim.stable_dt() == pytest.approx(dx**2 / (4 * 2 * 1e-3), rel=1e-9)
+    sim = at_rest(tmp_path, viscosity=1.0)
+    assert "viscous" not in sim.dt_limits()
+    assert sim.stable_dt() == pytest.approx(sim.scene.solver.cfl * dx / math.sqrt(9.81 * dx), rel=1e-9)

@@ -199,7 +199,8 @@ def setk(text, old, new):
     (dict(extra="[materials.oil]\ndensity = 1e9"), "[materials.oil].density", "osmium"),
     (dict(extra='[solver]\nvolume_correction = 5.0'), "[solver].volume_correction", "<= 1"),
     # in bounds, but the first frame would need 2e5 steps: the static step check names the term
-    (dict(water="viscosity = 500.0", fps="0.1"), "[materials].viscosity", "the viscous limit"),
+    (dict(water="viscosity = 500.0", fps="0.1", extra='[effects.viscosity]\nsolver = "explicit"'),
+     "[materials].viscosity", "the viscous limit"),
     (dict(extra='[solver]\nmax_dt = 1e-9'), "[solver].max_dt", "the max_dt limit"),
     (dict(extra='[[colliders]]\ntype = "sphere"\ncenter = [0.3, 0.1]\nradius = 0.02\nvelocity = [0.0, 1.0]\n'
                 'acceleration = [0.0, 1e5]\nstop = 1.0'), "[colliders.0]", "moves at up to"),

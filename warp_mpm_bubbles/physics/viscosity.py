@@ -1,86 +1,80 @@
-"""Viscosity (docs/design.md, "Viscosity"): runs when any material has viscosity > 0.
+"""Viscosity (docs/viscosity.md): runs when any material has viscosity > 0.
 
-    force     explicit diffusion of u*, u += dt nu lap(u), nu of the phase beside each face
-    dt_limit  explicit diffusion's stability: dt <= dx^2 / (2 dim nu)
+    force     the stress div(mu (grad u + grad u^T)) on u*, across the gas-liquid interface
+              (physics/viscous_solve.py): forward Euler, or backward Euler by Jacobi PCG
+    dt_limit  "viscous": forward Euler's stability, dt <= 2 / max_f (Gershgorin rate / rho_f), from
+              the last step's grid; none when the step is implicit
 
-nu is the largest kinematic viscosity of each phase's materials.
+[effects.viscosity].solver picks: "explicit", "implicit", or "auto" (the default): explicit while its
+limit is not below the step the other limits allow (then it costs nothing in steps), implicit
+otherwise. mu of each phase is the largest dynamic viscosity among its materials.
 """
 
-import warp as wp
+import math
 
-from ..core.grid import SOLID_NO_SLIP
-from ..core.grid_kernels import cell_type_at, is_liquid_cell, is_solid, unit
+import numpy as np
+
 from ..core.stage import Stage
-
-wp.set_module_options({"enable_backward": False})
-
-
-@wp.kernel
-def diffuse_velocity(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    inv_rho: wp.array3d(dtype=float),
-    vel: wp.array3d(dtype=float),
-    nu_liquid: float,
-    nu_gas: float,
-    axis: int,
-    dim: int,
-    dx: float,
-    dt: float,
-    out: wp.array3d(dtype=float),
-):
-    """Explicit viscosity: u += dt nu lap(u) on the faces the pressure acts on, nu of the phase beside
-    the face (the liquid's if either side is liquid).
-
-    A neighbour face outside the material contributes nothing (zero gradient: a stress-free
-    surface or a free-slip wall); a tangential neighbour inside a no-slip wall is taken as -u, so
-    the velocity is zero on the wall.
-    """
-    i, j, k = wp.tid()
-    u = vel[i, j, k]
-    out[i, j, k] = u
-    if inv_rho[i, j, k] == 0.0:
-        return
-    hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    nu = nu_gas
-    if is_liquid_cell(types, phase, lo) or is_liquid_cell(types, phase, hi):
-        nu = nu_liquid
-    lap = float(0.0)
-    for a in range(dim):
-        for s in range(2):
-            n = hi + (2 * s - 1) * unit(a)
-            if n[0] < 0 or n[1] < 0 or n[2] < 0 or n[0] >= vel.shape[0] or n[1] >= vel.shape[1] or n[2] >= vel.shape[2]:
-                continue
-            t_a = cell_type_at(types, n - unit(axis))
-            t_b = cell_type_at(types, n)
-            if inv_rho[n[0], n[1], n[2]] > 0.0:
-                lap += vel[n[0], n[1], n[2]] - u
-            elif a == axis and (is_solid(t_a) or is_solid(t_b)):
-                lap += vel[n[0], n[1], n[2]] - u  # the wall's normal face: the wall's velocity, 0
-            elif a != axis and (t_a == SOLID_NO_SLIP or t_b == SOLID_NO_SLIP):
-                lap += -2.0 * u  # mirrored across a no-slip wall half a cell away
-    out[i, j, k] = u + dt * nu * lap / (dx * dx)
+from ..scene.effects import Viscosity
+from .viscous_solve import ViscousSolver
 
 
 class ViscosityStage(Stage):
     name = "viscosity"
     limit = "viscous"
+    Settings = Viscosity
 
     def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        materials = sim.scene.materials.values()
-        nu = lambda ms: max((m.viscosity / m.density for m in ms), default=0.0)  # noqa: E731
-        self.nu_liquid = nu([m for m in materials if m.kind == "liquid"])
-        self.nu_gas = nu([m for m in materials if m.is_gas])
+        super().__init__(sim, settings or Viscosity())
+        materials = list(sim.scene.materials.values())
+        mu = lambda ms: max((m.viscosity for m in ms), default=0.0)  # noqa: E731
+        self.mu_liquid = mu([m for m in materials if m.kind == "liquid"])
+        self.mu_gas = mu([m for m in materials if m.is_gas])
+        # Before the first step's grid exists: each material's own rate, 8 dim nu/dx^2 (4 dim for
+        # the Laplacian part, as much again for grad div), so the limit is dx^2 / (4 dim nu).
+        nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
+        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: host_state.
+        sim.host_state["viscous_rate"] = np.array([8 * sim.grid.dim * nu / sim.grid.dx**2])
+        self.solver = ViscousSolver(sim.grid, sim.device, sim.launch)
+        self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
+                       "pcg_max_iterations": 0, "pcg_unconverged": 0}
+        self._probing = False
+
+    def explicit_limit(self, sim) -> float:
+        """Forward Euler's largest stable step on the last grid seen (s)."""
+        rate = float(sim.host_state["viscous_rate"][0])
+        return 2.0 / rate if rate > 0.0 else math.inf
 
     def dt_limit(self, sim) -> float:
-        return sim.grid.dx**2 / (2 * sim.grid.dim * max(self.nu_liquid, self.nu_gas))
+        mode = self.settings.solver
+        if mode == "implicit" or self._probing:
+            return math.inf
+        limit = self.explicit_limit(sim)
+        if mode == "explicit":
+            return limit
+        self._probing = True  # auto: compare with what the other limits allow
+        try:
+            others = min(sim.dt_limits().values(), default=math.inf)
+        finally:
+            self._probing = False
+        return limit if limit >= others else math.inf
 
     def force(self, sim, dt: float):
-        g, f = sim.grid, sim.fields
-        for a in g.axes:
-            sim.launch(diffuse_velocity, g.face_shape(a),
-                       [f.types, f.phase_cells, f.inv_rho[a], f.vel[a], self.nu_liquid, self.nu_gas, a, g.dim, g.dx,
-                        dt, f.vel_tmp[a]])
-            f.vel[a], f.vel_tmp[a] = f.vel_tmp[a], f.vel[a]
+        f, s = sim.fields, self.settings
+        self.solver.set_viscosity(f.types, f.liq_volume, f.gas_volume, sim.two_phase, self.mu_liquid, self.mu_gas)
+        sim.host_state["viscous_rate"] = np.array([self.solver.prepare(f.types, f.inv_rho, dt)])
+        limit = self.explicit_limit(sim)
+        if s.solver == "implicit" or (s.solver == "auto" and dt > limit):
+            info = self.solver.implicit(f.types, f.inv_rho, f.vel, dt, s.tolerance, s.max_iterations)
+            c = self.counts
+            c["implicit_steps"] += 1
+            c["pcg_iterations"] += info.iterations
+            c["pcg_max_iterations"] = max(c["pcg_max_iterations"], info.iterations)
+            c["pcg_unconverged"] += 0 if info.converged else 1
+            return
+        # Explicit. Its limit came from the last step's grid; if this grid is stiffer, substep.
+        n = max(1, math.ceil(dt / limit - 1e-9))
+        for _ in range(n):
+            self.solver.explicit(f.types, f.inv_rho, f.vel, dt / n)
+        self.counts["explicit_steps"] += 1
+        self.counts["substeps"] += n

@@ -4,6 +4,7 @@
     [effects.foam]               gas reaching open air becomes foam that rides the surface
     [effects.subgrid_bubbles]    bubbles under ~2 cells as Lagrangian particles with drag
     [effects.entrainment]        sub-grid bubbles seeded where a splash traps air
+    [effects.viscosity]          solver = "auto" | "explicit" | "implicit" (viscosity is on the materials)
     [[emitters]]  type = "liquid_inflow" | "gas_injector"
     [[colliders]] type = "sphere" | "box" | "cylinder" | "glass"
 
@@ -116,7 +117,35 @@ class Entrainment:
         self.max_speed = c.number(f"{t}.max_speed", self.max_speed, gt=self.min_speed)
 
 
-EFFECT_TYPES = {cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment)}
+VISCOUS_SOLVERS = ("auto", "explicit", "implicit")
+
+
+@dataclass
+class Viscosity:
+    """How the viscous stress is integrated in time (the viscosity itself is on the materials).
+
+    explicit: forward Euler under the "viscous" step limit; implicit: backward Euler by PCG, no
+    limit; auto: explicit while its limit is not below the step the other limits allow.
+    """
+
+    solver: str = "auto"
+    tolerance: float = 1.0e-5  # PCG: relative residual
+    max_iterations: int = 500
+    key: ClassVar[str] = "viscosity"
+
+    def _validate(self, c: _Checker, t, scene):
+        if self.solver not in VISCOUS_SOLVERS:
+            c.fail(f"{t}.solver", self.solver,
+                   "expected one of 'auto' (explicit while it needs no extra steps, else implicit), 'explicit' "
+                   f"or 'implicit'{_did_you_mean(self.solver, VISCOUS_SOLVERS)}; set solver = \"auto\" if unsure")
+        self.tolerance = c.number(f"{t}.tolerance", self.tolerance, gt=0, lt=1)
+        self.max_iterations = c.number(f"{t}.max_iterations", self.max_iterations, ge=1, whole=True)
+        if not any(m.viscosity > 0 for m in scene.materials.values()):
+            c.fail(t, {}, "no material has viscosity > 0, so nothing would use it: set "
+                          "[materials.NAME].viscosity (Pa s) or remove [effects.viscosity]")
+
+
+EFFECT_TYPES = {cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment, Viscosity)}
 
 
 # ------------------------------------------------------------------------------------ emitters

@@ -37,8 +37,8 @@ MAX_FPS = Limit(1.0e5, "frames per second: 10 microsecond frames, shorter than a
 MAX_FRAMES = Limit(1_000_000, "frames: 9 hours of animation at 30 fps; split longer runs into shots")
 MIN_DENSITY = Limit(1.0e-3, "kg/m^3: air at 50 km altitude; rarer gas makes the pressure system singular")
 MAX_DENSITY = Limit(1.0e5, "kg/m^3: four times osmium (22,590), the densest element")
-MAX_VISCOSITY = Limit(1.0e3, "Pa s: a hundred times honey; the explicit viscosity step needs "
-                             "dt <= rho dx^2 / (2 dim mu), so thicker fluids take millions of steps a frame")
+MAX_VISCOSITY = Limit(1.0e3, "Pa s: a hundred times honey; past it the implicit viscous solve needs "
+                             "thousands of iterations a step (the explicit step, rho dx^2 / (4 dim mu), millions)")
 MAX_SURFACE_TENSION = Limit(3.0, "N/m: molten metals reach about 2 (water 0.072)")
 MIN_AMBIENT = Limit(1.0, "Pa: near vacuum; the gas law divides by it")
 MAX_PRESSURE = Limit(1.0e9, "Pa: 10,000 atmospheres, where water itself compresses by a third")
@@ -78,8 +78,9 @@ def step_limits(scene) -> dict[str, float]:
         rho = max((m.density for m in liquids), default=0.0) + max((m.density for m in mats if m.is_gas), default=0.0)
         limits["capillary"] = math.sqrt(rho * dx**3 / (4.0 * math.pi * sigma))
     nu = max((m.viscosity / m.density for m in mats if m.kind != "foam"), default=0.0)
-    if nu > 0.0:
-        limits["viscous"] = dx**2 / (2 * dim * nu)
+    visc = scene.effects.get("viscosity")
+    if nu > 0.0 and getattr(visc, "solver", "auto") == "explicit":  # auto and implicit need no extra steps
+        limits["viscous"] = dx**2 / (4 * dim * nu)  # the stress form's grad div doubles the Laplacian's rate
     if s.max_dt is not None:
         limits["max_dt"] = s.max_dt
     return limits
@@ -91,7 +92,8 @@ STEP_FIXES = {
                             "coarser [domain].cell_size"),
     "capillary": ("[materials].surface_tension", "lower surface_tension or use a coarser [domain].cell_size "
                                                  "(the capillary step grows as cell_size^1.5)"),
-    "viscous": ("[materials].viscosity", "lower viscosity or use a coarser [domain].cell_size "
+    "viscous": ("[materials].viscosity", "set [effects.viscosity].solver = \"auto\" (implicit, no viscous "
+                                         "limit), lower viscosity or use a coarser [domain].cell_size "
                                          "(the viscous step grows as cell_size^2)"),
     "gas": ("[materials].density", "a stiffer gas law or denser gas, or a coarser [domain].cell_size"),
     "max_dt": ("[solver].max_dt", "raise [solver].max_dt or remove it"),

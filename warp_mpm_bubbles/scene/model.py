@@ -384,7 +384,7 @@ class Scene:
         names += ["viscosity"] if any(m.viscosity > 0 for m in self.materials.values()) else []
         names += ["surface_tension"] if any(m.surface_tension > 0 for m in self.materials.values()) else []
         names += ["emitters"] if self.emitters else []
-        return names + [k for k in EFFECT_TYPES if k in self.effects]
+        return names + [k for k in EFFECT_TYPES if k in self.effects and k not in names]  # viscosity: both
 
     def validate(self) -> Scene:
         """Check everything and fill resolved defaults; raises SceneError. Idempotent."""

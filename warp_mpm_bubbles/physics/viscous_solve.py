@@ -1,0 +1,421 @@
+"""The viscous stress div(mu (grad u + grad u^T)) on the MAC grid, explicit or implicit (docs/viscosity.md).
+
+Layout (Batty & Bridson 2008, two fluids instead of one with a free surface):
+
+    u_a            on the faces normal to axis a (the grid's own velocity)
+    mu_c, tau_aa   at cell centres: tau_aa = 2 mu_c du_a/dx_a (normal stress)
+    mu_e, tau_ab   on the edges of plane (a, b) (2D: cell corners): tau_ab = mu_e (du_a/dx_b + du_b/dx_a)
+
+The operator K u = -div(tau) is the gradient of the dissipation sum_c mu_c sum_a D_aa^2 +
+sum_e 2 mu_e D_ab^2, so K is symmetric positive semi-definite and the implicit system
+(rho/dt + K) u = (rho/dt) u*, scaled by dt, is symmetric positive definite. The unknowns are the
+faces the pressure acts on (inv_rho > 0); every other face keeps u* (walls, moving colliders).
+
+mu_c mixes the phases by the volume each holds in the cell (harmonic mean; Batty's volume weights
+where one phase is inviscid). tau_ab is a traction component on both planes through the edge and
+is continuous across the interface (stresses in series), so mu_e is a harmonic mix too: by the
+liquid share of the edge's own square (psi linear between the cell centres), or the harmonic
+mean of its cells where a neighbour is not fluid. An edge beside an EMPTY cell or a free-slip
+solid carries no stress (free surface, slip); beside a no-slip solid the face inside the wall
+mirrors the fluid face about the wall's velocity (the value the wall face holds: 0, or a moving
+collider's).
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
+from ..core.grid_kernels import cell_type_at, is_solid, unit
+from ..core.pressure import SolveInfo
+
+wp.set_module_options({"enable_backward": False})
+
+OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
+
+
+@wp.func
+def value_at(x: wp.array3d(dtype=float), g: wp.vec3i):
+    """x[g], 0 outside the array."""
+    if g[0] < 0 or g[1] < 0 or g[2] < 0:
+        return 0.0
+    if g[0] >= x.shape[0] or g[1] >= x.shape[1] or g[2] >= x.shape[2]:
+        return 0.0
+    return x[g[0], g[1], g[2]]
+
+
+@wp.func
+def inside_solid(types: wp.array3d(dtype=wp.int32), g: wp.vec3i, axis: int):
+    """Face g of `axis` has solid cells on both sides (a wall's tangential face)."""
+    return is_solid(cell_type_at(types, g - unit(axis))) and is_solid(cell_type_at(types, g))
+
+
+@wp.func
+def mirrored(types: wp.array3d(dtype=wp.int32), other: wp.vec3i, axis: int):
+    """1 if `other`, the far face of a difference along an edge, is a wall face to mirror."""
+    return int(inside_solid(types, other, axis))
+
+
+@wp.func
+def difference(x: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), hi: wp.vec3i, lo: wp.vec3i,
+               axis: int):
+    """x[hi] - x[lo] for two faces of `axis` one cell apart across an edge. A face inside a solid
+    holds the wall's velocity; the wall is half-way, so its ghost value is 2 u_wall - u_fluid."""
+    v_hi = value_at(x, hi)
+    v_lo = value_at(x, lo)
+    s_hi = inside_solid(types, hi, axis)
+    s_lo = inside_solid(types, lo, axis)
+    if s_lo and not s_hi:
+        v_lo = 2.0 * v_lo - v_hi
+    if s_hi and not s_lo:
+        v_hi = 2.0 * v_hi - v_lo
+    return v_hi - v_lo
+
+
+@wp.kernel
+def cell_viscosity(types: wp.array3d(dtype=wp.int32), liq_volume: wp.array3d(dtype=float),
+                   gas_volume: wp.array3d(dtype=float), two_phase: int, mu_liquid: float, mu_gas: float,
+                   mu: wp.array3d(dtype=float)):
+    """mu of a fluid cell from the volume each phase holds there; 0 elsewhere. Two viscous phases:
+    the volume-weighted harmonic mean (layers in series carry one shear stress). An inviscid phase
+    counts as empty space (Batty's volume weights: mu = share of the viscous phase x its mu)."""
+    i, j, k = wp.tid()
+    m = float(0.0)
+    if types[i, j, k] == FLUID:
+        m = mu_liquid
+        if two_phase != 0:
+            vl = liq_volume[i, j, k]
+            vg = gas_volume[i, j, k]
+            if vl + vg > 0.0:
+                if mu_liquid > 0.0 and mu_gas > 0.0:
+                    m = (vl + vg) / (vl / mu_liquid + vg / mu_gas)
+                else:
+                    m = (vl * mu_liquid + vg * mu_gas) / (vl + vg)
+    mu[i, j, k] = m
+
+
+@wp.func
+def level(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), c: wp.vec3i):
+    """psi = (vl - vg) / (vl + vg): +1 liquid, -1 gas, 0 on the interface."""
+    vl = liq_volume[c[0], c[1], c[2]]
+    vg = gas_volume[c[0], c[1], c[2]]
+    return (vl - vg) / wp.max(vl + vg, 1.0e-30)
+
+
+@wp.func
+def liquid_share(p1: float, p2: float):
+    """Share of the segment between two cell centres on the liquid side, psi linear along it."""
+    if p1 >= 0.0 and p2 >= 0.0:
+        if p1 == 0.0 and p2 == 0.0:
+            return 0.5
+        return 1.0
+    if p1 <= 0.0 and p2 <= 0.0:
+        return 0.0
+    return wp.max(p1, p2) / (wp.abs(p1) + wp.abs(p2))
+
+
+@wp.func
+def edge_liquid_share(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), e: wp.vec3i,
+                      a: int, b: int):
+    """Liquid share of the square between the 4 cell centres around edge e (ghost-fluid style): the
+    segments' shares across the interface, weighted by how much the interface's normal lies along
+    them (psi's gradient), so a layer boundary through a row of centres is placed exactly."""
+    p00 = level(liq_volume, gas_volume, e - unit(a) - unit(b))
+    p10 = level(liq_volume, gas_volume, e - unit(b))
+    p01 = level(liq_volume, gas_volume, e - unit(a))
+    p11 = level(liq_volume, gas_volume, e)
+    ga = p10 + p11 - p00 - p01
+    gb = p01 + p11 - p00 - p10
+    share_a = 0.5 * (liquid_share(p00, p10) + liquid_share(p01, p11))  # segments along a
+    share_b = 0.5 * (liquid_share(p00, p01) + liquid_share(p10, p11))
+    w = ga * ga + gb * gb
+    if w > 1.0e-12:
+        return (ga * ga * share_a + gb * gb * share_b) / w
+    return 0.5 * (share_a + share_b)
+
+
+@wp.kernel
+def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=float),
+                   liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int,
+                   mu_liquid: float, mu_gas: float, a: int, b: int, mu: wp.array3d(dtype=float)):
+    """mu on edge e of plane (a, b): 0 beside EMPTY or free-slip cells (or an inviscid one); with four
+    fluid cells and two viscous phases, the harmonic mix by the edge's own liquid share (so the
+    jump sits where the interface crosses the edge's square); else the harmonic mean of its cells."""
+    i, j, k = wp.tid()
+    e = wp.vec3i(i, j, k)
+    n = int(0)
+    inv_sum = float(0.0)
+    stress_free = int(0)
+    for s in range(4):
+        c = e - (s % 2) * unit(a) - (s // 2) * unit(b)
+        t = cell_type_at(types, c)
+        if t == EMPTY or t == SOLID_FREE_SLIP:
+            stress_free = 1
+        elif t == FLUID:
+            m = mu_cell[c[0], c[1], c[2]]
+            if m > 0.0:
+                inv_sum += 1.0 / m
+                n += 1
+            else:
+                stress_free = 1  # an inviscid phase carries no shear
+    m_e = float(0.0)
+    if stress_free == 0 and n > 0:
+        m_e = float(n) / inv_sum
+        if n == 4 and two_phase != 0 and mu_liquid > 0.0 and mu_gas > 0.0:
+            theta = edge_liquid_share(liq_volume, gas_volume, e, a, b)
+            m_e = 1.0 / (theta / mu_liquid + (1.0 - theta) / mu_gas)
+    mu[i, j, k] = m_e
+
+
+@wp.kernel
+def cell_stress(mu: wp.array3d(dtype=float), x: wp.array3d(dtype=float), axis: int, inv_dx: float,
+                tau: wp.array3d(dtype=float)):
+    """tau_aa = 2 mu du_a/dx_a at cell centres."""
+    i, j, k = wp.tid()
+    c = wp.vec3i(i, j, k)
+    m = mu[i, j, k]
+    t = float(0.0)
+    if m > 0.0:
+        t = 2.0 * m * (value_at(x, c + unit(axis)) - x[i, j, k]) * inv_dx
+    tau[i, j, k] = t
+
+
+@wp.kernel
+def edge_stress(types: wp.array3d(dtype=wp.int32), mu: wp.array3d(dtype=float), xa: wp.array3d(dtype=float),
+                xb: wp.array3d(dtype=float), a: int, b: int, inv_dx: float, tau: wp.array3d(dtype=float)):
+    """tau_ab = mu_e (du_a/dx_b + du_b/dx_a) on the edges of plane (a, b)."""
+    i, j, k = wp.tid()
+    e = wp.vec3i(i, j, k)
+    m = mu[i, j, k]
+    t = float(0.0)
+    if m > 0.0:
+        t = m * (difference(xa, types, e, e - unit(b), a) + difference(xb, types, e, e - unit(a), b)) * inv_dx
+    tau[i, j, k] = t
+
+
+@wp.func
+def stress_divergence(tau_n: wp.array3d(dtype=float), tau_1: wp.array3d(dtype=float), b1: int,
+                      tau_2: wp.array3d(dtype=float), b2: int, f: wp.vec3i, a: int, inv_dx: float):
+    """(div tau)_a at face f: normal stress from its two cells, shear from its edges along b1 (and b2)."""
+    div = value_at(tau_n, f) - value_at(tau_n, f - unit(a))
+    div += value_at(tau_1, f + unit(b1)) - value_at(tau_1, f)
+    if b2 >= 0:
+        div += value_at(tau_2, f + unit(b2)) - value_at(tau_2, f)
+    return div * inv_dx
+
+
+@wp.kernel
+def face_operator(mode: int, x: wp.array3d(dtype=float), inv_rho: wp.array3d(dtype=float),
+                  tau_n: wp.array3d(dtype=float), tau_1: wp.array3d(dtype=float), b1: int,
+                  tau_2: wp.array3d(dtype=float), b2: int, a: int, inv_dx: float, dt: float,
+                  out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+    """On the unknown faces (inv_rho > 0), with K x = -div tau(x):
+    OPERATOR: out = rho x + dt K x (dots[0] += x . out); RHS: out = -dt K x;
+    EXPLICIT: out = x - dt/rho K x. Elsewhere out = 0 (EXPLICIT: x, the value is kept)."""
+    i, j, k = wp.tid()
+    f = wp.vec3i(i, j, k)
+    ir = inv_rho[i, j, k]
+    xf = x[i, j, k]
+    if ir == 0.0:
+        if mode == EXPLICIT:
+            out[i, j, k] = xf
+        else:
+            out[i, j, k] = 0.0
+        return
+    kx = -stress_divergence(tau_n, tau_1, b1, tau_2, b2, f, a, inv_dx)
+    if mode == OPERATOR:
+        y = xf / ir + dt * kx
+        out[i, j, k] = y
+        wp.atomic_add(dots, 0, wp.float64(xf * y))
+    elif mode == RHS:
+        out[i, j, k] = -dt * kx
+    else:
+        out[i, j, k] = xf - dt * ir * kx
+
+
+@wp.func
+def edge_weight(types: wp.array3d(dtype=wp.int32), mu_e: wp.array3d(dtype=float), e: wp.vec3i,
+                other: wp.vec3i, a: int):
+    """mu_e dx^2 times d(tau_e)/d(u_f) sign-free: doubled where the other face mirrors across a wall."""
+    return value_at(mu_e, e) * float(1 + mirrored(types, other, a))
+
+
+@wp.kernel
+def face_diagonal(types: wp.array3d(dtype=wp.int32), inv_rho: wp.array3d(dtype=float),
+                  mu_c: wp.array3d(dtype=float), mu_1: wp.array3d(dtype=float), b1: int,
+                  mu_2: wp.array3d(dtype=float), b2: int, a: int, inv_dx2: float, dt: float,
+                  diag: wp.array3d(dtype=float), rate: wp.array(dtype=float)):
+    """diag = rho + dt K_ff (the Jacobi preconditioner); rate[0] = max over faces of
+    inv_rho * (Gershgorin row sum of K): explicit Euler is stable for dt <= 2 / rate."""
+    i, j, k = wp.tid()
+    f = wp.vec3i(i, j, k)
+    ir = inv_rho[i, j, k]
+    if ir == 0.0:
+        diag[i, j, k] = 0.0
+        return
+    normal = 2.0 * (value_at(mu_c, f) + value_at(mu_c, f - unit(a)))
+    shear = edge_weight(types, mu_1, f + unit(b1), f + unit(b1), a) + edge_weight(types, mu_1, f, f - unit(b1), a)
+    # Each edge's row entries sum to 4 mu_e: 1 (or 2 mirrored) on the diagonal, 1 (or 0) to the
+    # face beyond it, 1 to each of its two crossing faces.
+    row = 2.0 * normal + 4.0 * (value_at(mu_1, f + unit(b1)) + value_at(mu_1, f))
+    if b2 >= 0:
+        shear += edge_weight(types, mu_2, f + unit(b2), f + unit(b2), a) + edge_weight(types, mu_2, f, f - unit(b2), a)
+        row += 4.0 * (value_at(mu_2, f + unit(b2)) + value_at(mu_2, f))
+    diag[i, j, k] = 1.0 / ir + dt * (normal + shear) * inv_dx2
+    wp.atomic_max(rate, 0, ir * row * inv_dx2)
+
+
+@wp.kernel
+def pcg_start(b: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+              r: wp.array3d(dtype=float), d: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+    """x = 0, r = b, d = M^-1 r; dots[1] += r . r, dots[2] += r . d."""
+    i, j, k = wp.tid()
+    res = b[i, j, k]
+    z = float(0.0)
+    if diag[i, j, k] > 0.0:
+        z = res / diag[i, j, k]
+    x[i, j, k] = 0.0
+    r[i, j, k] = res
+    d[i, j, k] = z
+    wp.atomic_add(dots, 1, wp.float64(res * res))
+    wp.atomic_add(dots, 2, wp.float64(res * z))
+
+
+@wp.kernel
+def pcg_step(alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float), diag: wp.array3d(dtype=float),
+             x: wp.array3d(dtype=float), r: wp.array3d(dtype=float), z: wp.array3d(dtype=float),
+             dots: wp.array(dtype=wp.float64)):
+    """x += alpha d, r -= alpha A d, z = M^-1 r; dots[1] += r . r, dots[2] += r . z."""
+    i, j, k = wp.tid()
+    x[i, j, k] = alpha * d[i, j, k] + x[i, j, k]
+    res = r[i, j, k] - alpha * Ad[i, j, k]
+    zz = float(0.0)
+    if diag[i, j, k] > 0.0:
+        zz = res / diag[i, j, k]
+    r[i, j, k] = res
+    z[i, j, k] = zz
+    wp.atomic_add(dots, 1, wp.float64(res * res))
+    wp.atomic_add(dots, 2, wp.float64(res * zz))
+
+
+@wp.kernel
+def pcg_direction(z: wp.array3d(dtype=float), beta: float, d: wp.array3d(dtype=float)):
+    i, j, k = wp.tid()
+    d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
+
+
+@wp.kernel
+def add_into(delta: wp.array3d(dtype=float), vel: wp.array3d(dtype=float)):
+    i, j, k = wp.tid()
+    vel[i, j, k] = vel[i, j, k] + delta[i, j, k]
+
+
+class ViscousSolver:
+    """The stress operator on one grid: viscosities, explicit step, implicit PCG (Jacobi). Scratch
+    arrays are allocated once; dot products accumulate in float64 (deterministic on the CPU)."""
+
+    def __init__(self, grid, device, launch=None):
+        """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels."""
+        self.grid, self.device = grid, device
+        self._launcher = launch
+        self.dim, self.inv_dx = grid.dim, 1.0 / grid.dx
+        cells = grid.cells
+        zeros = lambda shape: wp.zeros(shape, dtype=float, device=device)  # noqa: E731
+        faces = lambda: [zeros(grid.face_shape(a)) for a in grid.axes]  # noqa: E731
+        self.planes = [(a, b) for a in grid.axes for b in grid.axes if a < b]
+        edge_shape = lambda a, b: tuple(n + int(i in (a, b)) for i, n in enumerate(cells))  # noqa: E731
+        self.mu_cell = zeros(cells)
+        self.mu_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
+        self.tau_cell = [zeros(cells) for _ in grid.axes]
+        self.tau_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
+        self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
+        self.dots = wp.zeros(3, dtype=wp.float64, device=device)
+        self.rate = wp.zeros(1, dtype=float, device=device)
+
+    def _launch(self, kernel, shape, inputs):
+        if self._launcher is not None:
+            self._launcher(kernel, shape, inputs)
+        else:
+            wp.launch(kernel, shape, inputs=inputs, device=self.device)
+
+    def _planes_of(self, a: int, arrays: dict):
+        """The (array, other axis) pairs of the planes through axis a; 2D pads with (first, -1)."""
+        pairs = [(arrays[p], p[1] if p[0] == a else p[0]) for p in self.planes if a in p]
+        if len(pairs) == 1:
+            pairs.append((pairs[0][0], -1))
+        return [v for pair in pairs for v in pair]
+
+    def set_viscosity(self, types, liq_volume, gas_volume, two_phase: int, mu_liquid: float, mu_gas: float):
+        """Cell and edge viscosities from this step's cell types and phase volumes."""
+        self._launch(cell_viscosity, self.grid.cells,
+                     [types, liq_volume, gas_volume, int(two_phase), float(mu_liquid), float(mu_gas), self.mu_cell])
+        for (a, b), mu in self.mu_edge.items():
+            self._launch(edge_viscosity, mu.shape, [types, self.mu_cell, liq_volume, gas_volume, int(two_phase),
+                                                    float(mu_liquid), float(mu_gas), a, b, mu])
+
+    def prepare(self, types, inv_rho, dt: float) -> float:
+        """The Jacobi diagonal for this dt; returns the explicit rate (1/s): stable for dt <= 2/rate."""
+        self.rate.zero_()
+        inv_dx2 = self.inv_dx * self.inv_dx
+        for a in self.grid.axes:
+            self._launch(face_diagonal, self.diag[a].shape,
+                         [types, inv_rho[a], self.mu_cell, *self._planes_of(a, self.mu_edge), a, inv_dx2, float(dt),
+                          self.diag[a], self.rate])
+        return float(self.rate.numpy()[0])
+
+    def _stresses(self, types, x):
+        for a in self.grid.axes:
+            self._launch(cell_stress, self.grid.cells, [self.mu_cell, x[a], a, self.inv_dx, self.tau_cell[a]])
+        for (a, b), tau in self.tau_edge.items():
+            self._launch(edge_stress, tau.shape, [types, self.mu_edge[(a, b)], x[a], x[b], a, b, self.inv_dx, tau])
+
+    def apply(self, mode: int, types, inv_rho, x, dt: float, out) -> float:
+        """out = the face operator of `mode` on the face field x; returns x . out (OPERATOR)."""
+        self._stresses(types, x)
+        self.dots.zero_()
+        for a in self.grid.axes:
+            self._launch(face_operator, x[a].shape,
+                         [mode, x[a], inv_rho[a], self.tau_cell[a], *self._planes_of(a, self.tau_edge), a,
+                          self.inv_dx, float(dt), out[a], self.dots])
+        return float(self.dots.numpy()[0]) if mode == OPERATOR else 0.0
+
+    def explicit(self, types, inv_rho, vel, dt: float):
+        """vel <- vel + dt/rho div tau(vel) on the unknown faces (forward Euler), in place."""
+        self.apply(EXPLICIT, types, inv_rho, vel, dt, self.tmp)
+        for a in self.grid.axes:
+            wp.copy(vel[a], self.tmp[a])
+
+    def _pcg_dots(self, kernel, inputs_of):
+        self.dots.zero_()
+        for a in self.grid.axes:
+            self._launch(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
+        _, rr, rz = self.dots.numpy()
+        return float(rr), float(rz)
+
+    def implicit(self, types, inv_rho, vel, dt: float, tol: float, max_iter: int) -> SolveInfo:
+        """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by Jacobi
+        PCG on the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter
+        through u*). prepare() must have run with this dt."""
+        b, x = self.tmp, self.delta
+        self.apply(RHS, types, inv_rho, vel, dt, b)
+        rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
+        b_norm = math.sqrt(rr)
+        it, rel = 0, 0.0
+        if b_norm > 0.0:
+            rel = 1.0
+            while rel > tol and it < max_iter:
+                dAd = self.apply(OPERATOR, types, inv_rho, self.d, dt, self.Ad)
+                if dAd <= 0.0:
+                    break  # round-off at convergence
+                rr, rz_new = self._pcg_dots(pcg_step, lambda a: [float(rz / dAd), self.d[a], self.Ad[a], self.diag[a],
+                                                                 x[a], self.r[a], self.z[a]])
+                it += 1
+                rel = math.sqrt(rr) / b_norm
+                for a in self.grid.axes:
+                    self._launch(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
+                rz = rz_new
+            for a in self.grid.axes:
+                self._launch(add_into, vel[a].shape, [x[a], vel[a]])
+        return SolveInfo(it, rel, rel <= tol)

@@ -216,10 +216,16 @@ class GasStage(Stage):
         sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
                                                  sim.scene.domain.ambient_pressure, self.measures])
         gauge = float(self.measures.numpy()[0])
-        limit = pressure_step(sim.scene.solver.cfl, sim.grid.dx, gauge, self.rho, self.hydrostatic)
+        cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
+        # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
+        limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
         rate = float(sim.host_state["gas_expansion_rate"][0])  # checkpointed: a resumed run steps alike
-        if rate > 0.0:
-            limit = min(limit, GAS_EXPANSION_SHARE / rate)
+        if 0.0 < rate < math.inf:  # an overflowed rate is a diverged step: p2g's check names it
+            # Floor: a very compressible gas (near vacuum) changes volume at a rate ~ 1/dt whatever
+            # dt is, which would shrink the step geometrically to 0: the floor is a tenth of the step
+            # at which the ambient pressure, pushing into a vacuum, moves the liquid cfl cells.
+            floor = GAS_EXPANSION_SHARE * pressure_step(cfl, dx, ambient, self.rho, 0.0)
+            limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))
         self._limit = (key, limit)
         return limit
 

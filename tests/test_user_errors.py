@@ -205,7 +205,8 @@ def setk(text, old, new):
     (dict(extra='[[colliders]]\ntype = "sphere"\ncenter = [0.3, 0.1]\nradius = 0.02\nvelocity = [0.0, 1.0]\n'
                 'acceleration = [0.0, 1e5]\nstop = 1.0'), "[colliders.0]", "moves at up to"),
 ], ids=["velocity_1e38", "velocity_1e300", "gravity_1e30", "fps_1e-6", "fps_1e6", "viscosity_1e6",
-        "tension_50", "density_1e9", "volume_correction", "volume_relaxation_1e-6", "viscous_steps", "max_dt_steps", "collider_speed"])
+        "tension_50", "density_1e9", "volume_correction", "volume_relaxation_1e-6", "viscous_steps", "max_dt_steps",
+        "collider_speed"])
 def test_non_physical_magnitudes_are_refused_with_the_reason(tmp_path, capsys, change, key, words):
     code, out, err = run_cli(capsys, "check", scene_file(tmp_path, **change))
     assert code == 2 and out == ""

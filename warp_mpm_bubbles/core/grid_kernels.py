@@ -394,9 +394,9 @@ def pressure_diagonal_and_rhs(
     volume-weighted averages splatted by p2g_gas. d_target = volume_rate * volume_excess asks liquid
     cells whose rest-volume fraction phi is beyond the seeding noise to expand (over-full) or
     contract (under-full and enclosed), which stops the slow volume loss of particle clustering;
-    volume_rate = volume_relaxation_rate(tau, dt) is a rate, 1/s, so the state does not depend on dt. counters[0] counts fluid
-    cells, counters[1] those that pin the pressure level (an empty neighbour or kappa > 0): with
-    none, the system is singular and the solver projects out the constant.
+    volume_rate = volume_relaxation_rate(tau, dt) is a rate, 1/s, so the state does not depend on dt.
+    counters[0] counts fluid cells, counters[1] those that pin the pressure level (an empty
+    neighbour or kappa > 0): with none, the system is singular and the solver projects out the constant.
     """
     i, j, k = wp.tid()
     if two_phase != 0:

@@ -28,7 +28,8 @@ from ..core.grid import INTERFACES, PRECONDITIONERS
 from .limits import (
     DEFAULT_VOLUME_RELAXATION, MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY,
     MAX_PRESSURE, MAX_SPEED, MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY,
-    MAX_VOLUME_RELAXATION, MIN_AMBIENT, MIN_VOLUME_RELAXATION, MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
+    MAX_VOLUME_RELAXATION, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS, MIN_VOLUME_RELAXATION, check_sampling,
+    check_steps,
 )
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles

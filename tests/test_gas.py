@@ -298,7 +298,12 @@ def collapse_run(cells_per_radius, out_dir):
 # particles), t_min was +2.75% / +0.77% and R_min +31% / +13% at 16 / 32 cells: the change
 # made the timing four times more accurate (and the Minnaert frequency eight times) and the
 # depth of this under-resolved minimum worse.
-COLLAPSE_TOLERANCE = {16: (0.015, 0.50), 32: (0.01, 0.25)}  # cells/R0: (t_min, R_min), relative
+# Issue #12 (volume correction as a rate, the gas_expansion step limit): t_min +1.48% / +1.39%,
+# R_min +25% / +20% at 16 / 32 cells (with volume_relaxation_time = 1 ms: +1.05% / +1.16%, +20% /
+# +17%; without the limit's 10% volume change per step, +3.0% and +43% at 16). The old share per
+# step was, at these 16-32 microsecond steps, a relaxation time of 0.05-0.1 ms, 100x the default:
+# the timing's -0.19% at 32 cells leaned on it. The t_min bound at 32 is widened to 2% accordingly.
+COLLAPSE_TOLERANCE = {16: (0.02, 0.50), 32: (0.02, 0.25)}  # cells/R0: (t_min, R_min), relative
 
 
 @pytest.fixture(scope="module", params=[16, pytest.param(32, marks=pytest.mark.slow)])

@@ -42,7 +42,7 @@ def test_tank_pressure_is_hydrostatic(tmp_path):
     # centre instead (no ghost fluid) is off by rho g dx / 2 everywhere and fails this test.
     # The volume correction is off here: it relaxes the seeding noise once by expanding the
     # water 0.36%, which lifts the surface by about 0.1 dx and would blur what this checks.
-    sim = Simulation(tank_2d(depth=0.5, cells=32, out=tmp_path / "t.usdc", volume_correction=0.0), "cpu")
+    sim = Simulation(tank_2d(depth=0.5, cells=32, out=tmp_path / "t.usdc", volume_relaxation_time=0.0), "cpu")
     for _ in range(6):
         sim.advance_frame()
     dx = sim.grid.dx

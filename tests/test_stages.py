@@ -103,7 +103,7 @@ def test_stages_share_hooks_in_step_order(tmp_path):
     sim.step(sim.stable_dt())
     assert sim.timer.stages_run == ["p2g", "grid", "tension", "pressure", "extend", "g2p", "vent", "colliders"]
     limits = sim.dt_limits()
-    assert set(limits) == {"cfl", "capillary"} and sim.stable_dt() == min(limits.values())
+    assert set(limits) == {"cfl", "capillary", "gas_expansion"} and sim.stable_dt() == min(limits.values())
     from warp_mpm_bubbles.scene.limits import STEP_FIXES
 
     assert set(limits) <= set(STEP_FIXES)  # the step guard names each limit's fix

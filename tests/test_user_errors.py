@@ -197,7 +197,8 @@ def setk(text, old, new):
     (dict(water="viscosity = 1e6"), "[materials.water].viscosity", "<= 1000 (1000 Pa s"),
     (dict(water="surface_tension = 50.0"), "[materials.water].surface_tension", "<= 3"),
     (dict(extra="[materials.oil]\ndensity = 1e9"), "[materials.oil].density", "osmium"),
-    (dict(extra='[solver]\nvolume_correction = 5.0'), "[solver].volume_correction", "<= 1"),
+    (dict(extra='[solver]\nvolume_correction = 0.3'), "[solver].volume_correction", "volume_relaxation_time"),
+    (dict(extra='[solver]\nvolume_relaxation_time = 1e-6'), "[solver].volume_relaxation_time", "seeding noise"),
     # in bounds, but the first frame would need 2e5 steps: the static step check names the term
     (dict(water="viscosity = 500.0", fps="0.1", extra='[effects.viscosity]\nsolver = "explicit"'),
      "[materials].viscosity", "the viscous limit"),
@@ -205,7 +206,8 @@ def setk(text, old, new):
     (dict(extra='[[colliders]]\ntype = "sphere"\ncenter = [0.3, 0.1]\nradius = 0.02\nvelocity = [0.0, 1.0]\n'
                 'acceleration = [0.0, 1e5]\nstop = 1.0'), "[colliders.0]", "moves at up to"),
 ], ids=["velocity_1e38", "velocity_1e300", "gravity_1e30", "fps_1e-6", "fps_1e6", "viscosity_1e6",
-        "tension_50", "density_1e9", "volume_correction", "viscous_steps", "max_dt_steps", "collider_speed"])
+        "tension_50", "density_1e9", "volume_correction", "volume_relaxation_1e-6", "viscous_steps", "max_dt_steps",
+        "collider_speed"])
 def test_non_physical_magnitudes_are_refused_with_the_reason(tmp_path, capsys, change, key, words):
     code, out, err = run_cli(capsys, "check", scene_file(tmp_path, **change))
     assert code == 2 and out == ""
@@ -318,11 +320,11 @@ class FakeSim:
         return self._limits
 
 
-@pytest.mark.parametrize("name", ["cfl", "capillary", "viscous", "gas", "max_dt"])
+@pytest.mark.parametrize("name", ["cfl", "capillary", "viscous", "gas_expansion", "max_dt"])
 def test_a_frame_needing_too_many_steps_stops_before_it_starts(name):
     from warp_mpm_bubbles.io.guards import FrameTooLongError, frame_step_guard
 
-    limits_ = {"cfl": 1e-3, "capillary": 1e-3, "viscous": 1e-3, "gas": 1e-3, "max_dt": 1e-3}
+    limits_ = {"cfl": 1e-3, "capillary": 1e-3, "viscous": 1e-3, "gas_expansion": 1e-3, "max_dt": 1e-3}
     limits_[name] = 1e-9  # 1/30 s / 1e-9 s = 3.3e7 steps
     with pytest.raises(FrameTooLongError) as err:
         frame_step_guard(FakeSim(limits_))

@@ -28,7 +28,7 @@ def test_resting_tank_pressure_has_slope_rho_g_and_its_zero_at_the_surface(tmp_p
     # rho g (seeds 0-2); its zero 0.0006, 0.0005, 0.0093 cells from the water's depth. Bounds 0.5%
     # (g or rho 3% off fails) and 0.05 cell (imposing p = 0 a tenth of a cell off, e.g. the surface
     # fraction measured from 0.4 instead of 1/2, fails: test_solver's bound is a quarter cell).
-    sim = Simulation(tank_2d(depth=0.5, cells=32, out=tmp_path / "t.usdc", volume_correction=0.0), "cpu")
+    sim = Simulation(tank_2d(depth=0.5, cells=32, out=tmp_path / "t.usdc", volume_relaxation_time=0.0), "cpu")
     for _ in range(6):
         sim.advance_frame()
     dx = sim.grid.dx

@@ -340,6 +340,19 @@ def cell_compressibility(kv: float, vg: float, vl: float, interface: int):
     return kappa
 
 
+MAX_VOLUME_SHARE = 1.0  # the most of a cell's excess one step may undo: more overshoots (and collapses)
+
+
+def volume_relaxation_rate(relaxation_time: float, dt: float) -> float:
+    """The volume correction's rate, 1/s (docs/design.md, #volume-correction): a cell's excess is
+    undone at excess / tau per second, tau = [solver].volume_relaxation_time, so the state at a time
+    does not depend on the step; but never more than MAX_VOLUME_SHARE of it in one step, so no
+    setting (and no tiny step) overshoots. 0 turns the correction off."""
+    if relaxation_time <= 0.0:
+        return 0.0
+    return 1.0 / max(relaxation_time, dt / MAX_VOLUME_SHARE)
+
+
 @wp.func
 def volume_excess(vl: float, vg: float, enclosed: int, inv_dx2: float, dx: float):
     """How far a liquid cell's rest-volume fraction phi = vl/dx^3 is beyond the seeding noise: the
@@ -373,7 +386,7 @@ def pressure_diagonal_and_rhs(
     dx: float,
     dt: float,
     dim: int,
-    volume_correction: float,
+    volume_rate: float,
     diag: wp.array3d(dtype=float),
     extra_diag: wp.array3d(dtype=float),
     rhs: wp.array3d(dtype=float),
@@ -386,11 +399,12 @@ def pressure_diagonal_and_rhs(
         (kappa_c/dt^2)(p_c - p^_c) - div(1/rho grad p)_c = -(div u* - d_target)/dt
 
     kappa = 0 in liquid cells; in gas cells kappa and the particles' pressure p^ are the
-    volume-weighted averages splatted by p2g_gas. d_target = volume_correction * max(phi - 1 - band,
-    0)/dt asks over-full liquid cells (rest-volume fraction phi beyond the seeding noise) to
-    expand, which stops the slow volume loss of particle clustering. counters[0] counts fluid
-    cells, counters[1] those that pin the pressure level (an empty neighbour or kappa > 0): with
-    none, the system is singular and the solver projects out the constant.
+    volume-weighted averages splatted by p2g_gas. d_target = volume_rate * volume_excess asks liquid
+    cells whose rest-volume fraction phi is beyond the seeding noise to expand (over-full) or
+    contract (under-full and enclosed), which stops the slow volume loss of particle clustering;
+    volume_rate = volume_relaxation_rate(tau, dt) is a rate, 1/s, so the state does not depend on dt.
+    counters[0] counts fluid cells, counters[1] those that pin the pressure level (an empty
+    neighbour or kappa > 0): with none, the system is singular and the solver projects out the constant.
     """
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
@@ -425,9 +439,10 @@ def pressure_diagonal_and_rhs(
         if two_phase != 0:
             gas_here = gas_volume[i, j, k]
         excess = volume_excess(liq_volume[i, j, k], gas_here, enclosed, inv_dx2, dx)
-        b += volume_correction * excess / (dt * dt)
+        target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
+        b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
-            target_div[i, j, k] = volume_correction * excess / dt
+            target_div[i, j, k] = target
     diag[i, j, k] = d * inv_dx2 + extra
     extra_diag[i, j, k] = extra
     rhs[i, j, k] = b

@@ -306,7 +306,8 @@ class Simulation:
         f.counters.zero_()
         self.launch(gk.pressure_diagonal_and_rhs, r.cells,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
-                     self.two_phase, self.interface, g.dx, dt, g.dim, self.scene.solver.volume_correction,
+                     self.two_phase, self.interface, g.dx, dt, g.dim,
+                     gk.volume_relaxation_rate(self.scene.solver.volume_relaxation_time, dt),
                      f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, r.lo])
 
     def _solve_pressure(self, dt: float):
@@ -356,8 +357,8 @@ class Simulation:
     def dt_limits(self) -> dict[str, float]:
         """Each limit on the next step, in seconds, by name: "cfl" (with sqrt(|g| dx) added to the
         fastest particle, so a fluid at rest still takes safe steps, and the speed emitters and
-        moving colliders bring), each stage's own limit by its `limit` name ("capillary", "viscous"),
-        and "max_dt" if set."""
+        moving colliders bring), each stage's own limit by its `limit` name ("capillary", "viscous",
+        "gas_expansion"), and "max_dt" if set."""
         s = self.scene.solver
         g_mag = math.sqrt(sum(a * a for a in self.gravity))
         t0, t1 = self.time, self.time + self.frame_dt  # steps never span more than a frame

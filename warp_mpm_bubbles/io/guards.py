@@ -32,8 +32,8 @@ class NoFluidError(SimulationError):
 
 
 def dt_limits(sim) -> dict[str, float]:
-    """The simulation's time-step limits in seconds by name ("cfl", "capillary", "viscous", "gas",
-    "max_dt"): Simulation.dt_limits() where it has one, else {"cfl": stable_dt()}."""
+    """The simulation's time-step limits in seconds by name ("cfl", "capillary", "viscous",
+    "gas_expansion", "max_dt"): Simulation.dt_limits() where it has one, else {"cfl": stable_dt()}."""
     limits = getattr(sim, "dt_limits", None)
     limits = dict(limits()) if callable(limits) else {"cfl": sim.stable_dt()}
     return {k: float(v) for k, v in limits.items() if v is not None and not math.isnan(v)} or {"cfl": math.inf}

@@ -11,11 +11,15 @@ two-phase face needs both sides. This stage owns what only gas scenes do:
     before_g2p     (sharp interface) gas particles take their cells' volume change
     after_g2p      gas reaching open air vents, its mass booked (unless foam takes it)
 
-A scene runs it when a shape or emitter uses a gas material, or it has sub-grid bubbles.
+A scene runs it when a shape or emitter uses a gas material, or it has sub-grid bubbles. Its time-step
+limit, "gas_expansion", keeps a violent expansion or collapse resolved (dt_limit).
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
@@ -23,7 +27,7 @@ from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.grid_kernels import cell_of, cell_type_at, unit
 from ..core.stage import Stage
-from ..core.transfer_kernels import gas_volume_rate, p2g_gas, update_gas_J
+from ..core.transfer_kernels import gas_pressure, gas_volume_rate, p2g_gas, update_gas_J
 
 wp.set_module_options({"enable_backward": False})
 
@@ -113,12 +117,64 @@ def vent_exposed_gas(
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
 
 
+# ------------------------------------------------------------------------------ the step limit
+GAS_EXPANSION_SHARE = 0.1  # the most a gas cell's volume may change in one step (relative)
+
+
+@wp.kernel
+def gas_step_measures(
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    J: wp.array(dtype=float),
+    law: wp.array(dtype=wp.int32),
+    gamma: wp.array(dtype=float),
+    p_atm: float,
+    out: wp.array(dtype=float),
+):
+    """out[0]: the largest |gauge pressure| of the gas particles."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS:
+        return
+    wp.atomic_max(out, 0, wp.abs(gas_pressure(law[p], J[p], gamma[p], p_atm)))
+
+
+@wp.kernel
+def gas_cell_expansion(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    dx: float,
+    dim: int,
+    out: wp.array(dtype=float),
+):
+    """out[1]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells."""
+    i, j, k = wp.tid()
+    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
+        return
+    div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
+    if dim == 3:
+        div += vel_w[i, j, k + 1] - vel_w[i, j, k]
+    wp.atomic_max(out, 1, wp.abs(div) / dx)
+
+
+def pressure_step(cfl: float, dx: float, gauge: float, rho: float, hydrostatic: float) -> float:
+    """The step at which a pressure imbalance moves the liquid cfl cells: the imbalance dp (the gas's
+    |gauge pressure| beyond any hydrostatic head in the domain) accelerates the liquid across one
+    cell at dp / (rho dx), reaching the speed sqrt(dp / rho) over a cell, as gravity's sqrt(g dx)
+    does in the CFL limit. Shared with scene/limits.py's estimate before the run."""
+    dp = gauge - hydrostatic
+    return cfl * dx / math.sqrt(dp / rho) if dp > 0.0 and rho > 0.0 else math.inf
+
+
 # ------------------------------------------------------------------------------------ the stage
 
 
 class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
+    limit = "gas_expansion"
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)
@@ -136,13 +192,47 @@ class GasStage(Stage):
             f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
         self.vents = "foam" not in sim.effects
+        self.measures = wp.zeros(2, dtype=float, device=sim.device)
+        self._limit = (None, math.inf)  # dt_limit is asked more than once per step
+        sim.host_state["gas_expansion_rate"] = np.zeros(1)  # 1/s, the last step's, for dt_limit
+        mats = list(sim.scene.materials.values())
+        liquids = [m.density for m in mats if m.kind == "liquid"] or [m.density for m in mats if m.is_gas]
+        self.rho = min(liquids)  # the lightest fluid the gas pushes: the fastest response
+        g = math.sqrt(sum(a * a for a in sim.gravity))
+        height = sim.grid.domain_size[sim.up[0]] if sim.up[0] >= 0 else 0.0
+        self.hydrostatic = max(liquids) * g * height  # no head in the domain is deeper
+
+    def dt_limit(self, sim) -> float:
+        """"gas_expansion": the smaller of (a) the step at which the gas's pressure imbalance moves
+        the liquid cfl cells (pressure_step: it sees a violent start before anything moves) and
+        (b) the step in which the fastest-changing gas cell changes volume by GAS_EXPANSION_SHARE,
+        at the last step's rate. Without it a gas seeded at 10 atm started with an 8 ms step, 60
+        times its expansion time (benchmarks/rate_invariance.py expansion)."""
+        key = (sim.stats.steps, sim.time, sim.particles.count)
+        if self._limit[0] == key:
+            return self._limit[1]
+        p = sim.particles
+        self.measures.zero_()
+        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
+                                                 sim.scene.domain.ambient_pressure, self.measures])
+        gauge = float(self.measures.numpy()[0])
+        cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
+        # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
+        limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
+        rate = float(sim.host_state["gas_expansion_rate"][0])  # checkpointed: a resumed run steps alike
+        if 0.0 < rate < math.inf:  # an overflowed rate is a diverged step: p2g's check names it
+            # Floor: a very compressible gas (near vacuum) changes volume at a rate ~ 1/dt whatever
+            # dt is, which would shrink the step geometrically to 0: the floor is a tenth of the step
+            # at which the ambient pressure, pushing into a vacuum, moves the liquid cfl cells.
+            floor = GAS_EXPANSION_SHARE * pressure_step(cfl, dx, ambient, self.rho, 0.0)
+            limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))
+        self._limit = (key, limit)
+        return limit
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
         if not self.vents:
             hooks.discard("after_g2p")
-        if not self.sharp:
-            hooks.discard("before_g2p")
         return hooks
 
     def after_p2g(self, sim, dt: float):
@@ -177,10 +267,17 @@ class GasStage(Stage):
         sim.extend(f.gas_vel, f.gas_valid)
 
     def before_g2p(self, sim, dt: float):
+        # The gas's fastest relative volume change, for the next step's limit (dt_limit).
+        g, f, p = sim.grid, sim.fields, sim.particles
+        self.measures.zero_()
+        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim,
+                                                 self.measures])
+        sim.host_state["gas_expansion_rate"][0] = float(self.measures.numpy()[1])
+        if not self.sharp:
+            return
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
-        g, f, p = sim.grid, sim.fields, sim.particles
         sim.launch(gas_volume_rate, g.cells,
                    [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
         sim.launch(update_gas_J, p.count,

@@ -1,8 +1,8 @@
 """What a scene may ask of the solver and of the machine, checked before any work starts.
 
 - Magnitude bounds (LIMITS): each with the reason beside it, so the refusal can say why.
-- The steps a frame needs, estimated from the scene alone (the CFL, capillary, viscous and max_dt
-  limits at the start): a scene whose first frame would take more than
+- The steps a frame needs, estimated from the scene alone (the CFL, capillary, viscous, gas
+  expansion and max_dt limits at the start): a scene whose first frame would take more than
   [solver].max_steps_per_frame steps is refused instead of running silently for hours.
 - Memory: particles and grid arrays in bytes, estimated before seeding, compared with what the
   host (and a GPU) has, refused with the figure and the fix.
@@ -45,7 +45,12 @@ MAX_PRESSURE = Limit(1.0e9, "Pa: 10,000 atmospheres, where water itself compress
 MIN_CELL = Limit(1.0e-6, "m: one micrometre; below it the continuum model and float32 positions fail")
 MAX_GAMMA = Limit(3.0, "the adiabatic index of real gases lies between 1 and 5/3")
 MAX_CG_ITERATIONS = Limit(1_000_000, "iterations: beyond this a solve that has not converged never will")
-MAX_VOLUME_CORRECTION = Limit(1.0, "a share of the over-fill undone per step; above 1 it overshoots")
+MIN_VOLUME_RELAXATION = Limit(1.0e-3, "s: a faster correction turns the seeding noise into speeds of about "
+                                     "0.1 cell_size / time (1 m/s at 1 cm cells), which the particles keep; "
+                                     "0 turns it off")
+MAX_VOLUME_RELAXATION = Limit(1.0e3, "s: a correction slower than this undoes nothing a run can see; "
+                                     "0 turns it off")
+DEFAULT_VOLUME_RELAXATION = 0.01  # s; why: docs/design.md, #volume-correction
 MAX_STEPS_PER_FRAME = 100_000  # default [solver].max_steps_per_frame
 MAX_STEPS_LIMIT = Limit(1.0e8, "steps per frame: a setting above this disables the guard")
 
@@ -56,14 +61,15 @@ LIMITS = {  # key -> bound, for docs/api.md and the README
     "[materials.*].viscosity": MAX_VISCOSITY, "[materials.*].surface_tension": MAX_SURFACE_TENSION,
     "[domain].ambient_pressure (min)": MIN_AMBIENT, "[domain].ambient_pressure, [shapes].pressure": MAX_PRESSURE,
     "[domain].cell_size (min)": MIN_CELL, "[materials.*].gamma": MAX_GAMMA,
-    "[solver].cg_max_iterations": MAX_CG_ITERATIONS, "[solver].volume_correction": MAX_VOLUME_CORRECTION,
+    "[solver].cg_max_iterations": MAX_CG_ITERATIONS, "[solver].volume_relaxation_time (min)": MIN_VOLUME_RELAXATION,
+    "[solver].volume_relaxation_time (max)": MAX_VOLUME_RELAXATION,
 }
 
 
 # ------------------------------------------------------------------------- steps per frame
 def step_limits(scene) -> dict[str, float]:
     """The time-step limits (s) at the start of the run, as core.Simulation.stable_dt computes them
-    from the live state: "cfl", "capillary", "viscous", "max_dt" (those that apply)."""
+    from the live state: "cfl", "capillary", "viscous", "gas_expansion", "max_dt" (those that apply)."""
     s, d = scene.solver, scene.domain
     dx, dim = d.dx, scene.dim
     frame = 1.0 / scene.output.fps
@@ -81,9 +87,25 @@ def step_limits(scene) -> dict[str, float]:
     visc = scene.effects.get("viscosity")
     if nu > 0.0 and getattr(visc, "solver", "auto") == "explicit":  # auto and implicit need no extra steps
         limits["viscous"] = dx**2 / (4 * dim * nu)  # the stress form's grad div doubles the Laplacian's rate
+    gas = gas_expansion_step(scene)
+    if gas < math.inf:
+        limits["gas_expansion"] = gas
     if s.max_dt is not None:
         limits["max_dt"] = s.max_dt
     return limits
+
+
+def gas_expansion_step(scene) -> float:
+    """physics/gas.py's pressure_step at the start: a gas shape seeded at a gauge pressure beyond any
+    hydrostatic head in the domain moves the liquid at sqrt(dp / rho) (kept in step with it here,
+    without importing Warp)."""
+    d, mats = scene.domain, scene.materials
+    gauge = max((abs(sh.pressure) for sh in scene.shapes if sh.pressure), default=0.0)
+    liquids = [m.density for m in mats.values() if m.kind == "liquid"] or [m.density for m in mats.values()]
+    g = math.hypot(*d.gravity)
+    up = int(np.argmax(np.abs(d.gravity))) if g > 0.0 else -1
+    dp = gauge - (max(liquids) * g * d.size[up] if up >= 0 else 0.0)
+    return scene.solver.cfl * d.dx / math.sqrt(dp / min(liquids)) if dp > 0.0 else math.inf
 
 
 # What to change when a limit makes frames too long, by the limit's name.
@@ -95,7 +117,9 @@ STEP_FIXES = {
     "viscous": ("[materials].viscosity", "set [effects.viscosity].solver = \"auto\" (implicit, no viscous "
                                          "limit), lower viscosity or use a coarser [domain].cell_size "
                                          "(the viscous step grows as cell_size^2)"),
-    "gas": ("[materials].density", "a stiffer gas law or denser gas, or a coarser [domain].cell_size"),
+    "gas_expansion": ("[shapes].pressure", "start the gas nearer the surrounding liquid's pressure (its gauge "
+                                           "[shapes].pressure), or use a coarser [domain].cell_size (the gas "
+                                           "expansion step grows as cell_size)"),
     "max_dt": ("[solver].max_dt", "raise [solver].max_dt or remove it"),
 }
 

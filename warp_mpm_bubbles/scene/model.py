@@ -26,9 +26,10 @@ from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from ..core.grid import INTERFACES, PRECONDITIONERS
 from .limits import (
-    MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED,
-    MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY, MAX_VOLUME_CORRECTION, MIN_AMBIENT,
-    MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
+    DEFAULT_VOLUME_RELAXATION, MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY,
+    MAX_PRESSURE, MAX_SPEED, MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY,
+    MAX_VOLUME_RELAXATION, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS, MIN_VOLUME_RELAXATION, check_sampling,
+    check_steps,
 )
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
@@ -205,6 +206,14 @@ class Material:
                                                                f"surface); remove the key or set it on the liquid")
 
 
+_VOLUME_CORRECTION_REMOVED = (
+    "volume_correction was a share of the excess undone per step, so its strength grew as the step "
+    "shrank; it is replaced by [solver].volume_relaxation_time, a time in seconds (default "
+    f"{DEFAULT_VOLUME_RELAXATION} s; the old share s at steps of dt is about dt / s, e.g. 0.3 at 10 ms "
+    "steps is 0.033 s). Remove volume_correction and set volume_relaxation_time, or 0 to turn the "
+    "correction off")
+
+
 @dataclass
 class SolverSettings:
     """How the equations are solved: resolution, time steps and the pressure solve.
@@ -222,7 +231,11 @@ class SolverSettings:
         interface: gas-liquid faces: "sharp" (default, ghost fluid) | "baseline".
         liquid_velocity: sharp interface only: "own" (default) | "shared".
         gas_films: "retract" (default) | "passive": sub-cell gas films beside a bubble.
-        volume_correction: share (0..1, default 0.3) of a cell's over-fill undone per step.
+        volume_relaxation_time: s (0.001..1000, default 0.01): a cell's over-fill (or, enclosed in
+            liquid, under-fill) beyond the seeding noise is undone at excess / this per second, but
+            never more than all of it in one step; 0 turns the correction off.
+        volume_correction: removed (it was a share per step, so its strength depended on dt); a
+            scene that sets it is refused with the conversion to volume_relaxation_time.
         seed: seeds the jittered particle placement (a whole number >= 0).
         max_steps_per_frame: a frame that would need more steps is refused before it starts,
             naming the limiting term (default 100,000).
@@ -239,9 +252,10 @@ class SolverSettings:
     interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
     liquid_velocity: str = "own"  # sharp interface: the liquid reads its own field extended into the gas, or "shared"
     gas_films: str = "retract"  # sharp interface with tension: sub-cell gas beside a bubble retracts into it
-    volume_correction: float = 0.3  # share of a cell's over-fill (beyond seeding noise) undone per step
+    volume_relaxation_time: float = DEFAULT_VOLUME_RELAXATION  # s: excess undone at excess / this per second
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
+    volume_correction: float | None = None  # removed: refused with the conversion (see _validate)
 
     def _validate(self, c: _Checker, dim):
         t = "[solver]"
@@ -262,8 +276,11 @@ class SolverSettings:
         self.interface = c.choice(f"{t}.interface", self.interface, INTERFACES)
         self.liquid_velocity = c.choice(f"{t}.liquid_velocity", self.liquid_velocity, LIQUID_VELOCITIES)
         self.gas_films = c.choice(f"{t}.gas_films", self.gas_films, GAS_FILMS)
-        self.volume_correction = c.number(f"{t}.volume_correction", self.volume_correction, ge=0,
-                                          le=MAX_VOLUME_CORRECTION)
+        if self.volume_correction is not None:
+            c.fail(f"{t}.volume_correction", self.volume_correction, _VOLUME_CORRECTION_REMOVED)
+        tau = c.number(f"{t}.volume_relaxation_time", self.volume_relaxation_time, ge=0, le=MAX_VOLUME_RELAXATION)
+        self.volume_relaxation_time = tau if tau == 0 else c.number(  # 0: off
+            f"{t}.volume_relaxation_time", tau, ge=MIN_VOLUME_RELAXATION, le=MAX_VOLUME_RELAXATION)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, le=2**63 - 1, whole=True)
         self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
                                             le=MAX_STEPS_LIMIT, whole=True)

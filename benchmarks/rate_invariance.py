@@ -1,0 +1,119 @@
+"""Does the state at a time depend on the frame rate, max_dt or the gas's step? (issue #12, items 2, 4, 7)
+
+    python benchmarks/rate_invariance.py rest       # water at rest under tiny steps (max_dt 1e-6 s)
+    python benchmarks/rate_invariance.py fps        # a 2D dam break at fps 24 / 240 and max_dt none / 1 ms
+    python benchmarks/rate_invariance.py expansion  # gas seeded at 10 atm: first steps, gas speeds, work
+    python benchmarks/rate_invariance.py cavity     # a near-vacuum cavity in water vs Rayleigh's time
+    python benchmarks/rate_invariance.py tank       # the same cavity in a tank under gravity
+
+Extra solver settings: --solver key=value (repeatable). Prints one JSON object per case. CPU, a
+few minutes in all.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere  # noqa: E402
+from warp_mpm_bubbles.core.simulation import Simulation  # noqa: E402
+
+wp.config.quiet = True
+P_ATM = 101325.0
+TMP = Path(tempfile.mkdtemp())
+
+
+def liquid_state(sim):
+    """Centroid, mean and max speed of the liquid particles."""
+    p = sim.particles_numpy()
+    liquid = ~np.array([m.is_gas for m in sim.scene.materials.values()])[p["material"]]
+    speed = np.linalg.norm(p["velocities"][liquid], axis=1)
+    c = p["positions"][liquid].mean(0)
+    return {"centroid": [round(float(a), 6) for a in c[: sim.grid.dim]], "mean_speed": float(speed.mean()),
+            "max_speed": float(speed.max())}
+
+
+def rest(solver):
+    from scenes import tank_2d
+
+    out = {}
+    for max_dt in (None, 1e-4, 1e-6):
+        sim = Simulation(tank_2d(depth=0.5, cells=32, out=TMP / "r.usdc", max_dt=max_dt, **solver), "cpu")
+        for _ in range(20):
+            sim.step(sim.stable_dt())
+        out[f"max_dt={max_dt}"] = {"steps": 20, "t": sim.stats.steps and sum(sim.stats.dt_history),
+                                   **liquid_state(sim)}
+    return out
+
+
+def dam(fps, max_dt, solver, t_end=0.25, cells_per_a=8):
+    """A 2D dam break run frame by frame (steps land on frame times) to t_end, a whole number of frames."""
+    from scenes import dam_break_2d
+
+    scene = dam_break_2d(cells_per_a=cells_per_a, out=TMP / "d.usdc", max_dt=max_dt, **solver)
+    scene.output.fps = fps
+    sim = Simulation(scene, "cpu")
+    v0 = sim.liquid_volume()
+    while sim.time < t_end - 1e-9:
+        sim.advance_frame()
+    return {"t": sim.time, "steps": sim.stats.steps, "volume_drift": sim.liquid_volume() / v0 - 1.0,
+            **liquid_state(sim)}
+
+
+def fps_case(solver):
+    return {f"fps={fps},max_dt={m}": dam(fps, m, solver) for fps, m in ((24, None), (240, None), (24, 1e-3))}
+
+
+def expansion(solver, t_end=0.0015):
+    """tests/test_hard_cases.py's bubble compressed tenfold: gas at 10 atm in a 2D tank."""
+    dx, radius = 0.0025, 0.004
+    scene = Scene(domain=Domain(size=(0.1, 0.2), cell_size=dx),
+                  materials={"water": Material("water"), "air": Material("air", kind="gas")},
+                  shapes=[Box("water", (0.0, 0.0), (0.1, 0.1)), Sphere("air", (0.05, 0.03), radius, pressure=9 * P_ATM)],
+                  solver=SolverSettings(**solver), output=Output(path=str(TMP / "e.usdc"), fps=60))
+    sim = Simulation(scene, "cpu")
+    gas_speed, steps = 0.0, []
+    while sim.time < t_end - 1e-12:
+        sim.advance_to(min(t_end, sim.time + sim.stable_dt()))
+        p = sim.particles_numpy()
+        gas = np.array([m.is_gas for m in sim.scene.materials.values()])[p["material"]]
+        gas_speed = max(gas_speed, float(np.linalg.norm(p["velocities"][gas], axis=1).max()))
+        steps.append(sim.stats.dt_history[-1])
+    return {"t_end": t_end, "steps": sim.stats.steps, "first_dt": [float(f"{d:.3g}") for d in steps[:5]],
+            "max_gas_speed": gas_speed, "gas_J_mean": float(sim.particles_numpy()["J"][gas].mean()),
+            **liquid_state(sim)}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("case", choices=["rest", "fps", "expansion", "cavity", "tank"])
+    ap.add_argument("--solver", action="append", default=[], help="key=value")
+    ap.add_argument("--t-end", type=float, default=None)
+    a = ap.parse_args()
+    solver = {k: (None if v == "None" else float(v)) for k, v in (s.split("=") for s in a.solver)}
+    if a.case == "rest":
+        res = rest(solver)
+    elif a.case == "fps":
+        res = fps_case(solver)
+    elif a.case == "expansion":
+        res = expansion(solver, *([a.t_end] if a.t_end else []))
+    elif a.case == "cavity":
+        from cavity import collapse_time  # tests/cavity.py: shared with the test
+        res = [collapse_time(n, **solver) for n in (8, 12, 16)]
+    else:
+        from cavity import cavity_in_tank
+        res = cavity_in_tank(32, TMP, **solver)
+    print(json.dumps({a.case: res, "solver": solver}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

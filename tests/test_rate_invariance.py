@@ -1,0 +1,153 @@
+"""The state at a time does not depend on the frame rate or the step (issue #12): the volume
+correction is a rate ([solver].volume_relaxation_time), bounded, and the step knows the gas
+("gas_expansion"). Numbers: benchmarks/rate_invariance.py (before/after in docs/design.md §3.3, §7)."""
+
+import math
+
+import numpy as np
+import pytest
+import warp as wp
+
+from scenes import dam_break_2d, tank_2d
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.scene.limits import MIN_VOLUME_RELAXATION, STEP_FIXES, step_limits
+
+wp.config.quiet = True
+P_ATM = 101325.0
+
+
+def liquid_state(sim):
+    p = sim.particles_numpy()
+    liquid = p["phase"] == 0
+    speed = np.linalg.norm(p["velocities"][liquid], axis=1)
+    return p["positions"][liquid, :2].mean(0), speed.mean(), speed.max()
+
+
+def occupied_cells(sim):
+    """Cells holding at least one liquid particle: particles collapsing to points empty most of them."""
+    p = sim.particles_numpy()
+    return len(np.unique(np.floor(p["positions"][p["phase"] == 0, :2] / sim.grid.dx).astype(int), axis=0))
+
+
+def dam(tmp_path, fps, max_dt=None, t_end=0.25, **solver):
+    """A 2D dam break (8 cells across the column), run frame by frame: steps land on frame times."""
+    scene = dam_break_2d(cells_per_a=8, out=tmp_path / "d.usdc", max_dt=max_dt, **solver)
+    scene.output.fps = fps
+    sim = Simulation(scene, "cpu")
+    v0 = sim.liquid_volume()
+    while sim.time < t_end - 1e-9:
+        sim.advance_frame()
+    return sim, sim.liquid_volume() / v0 - 1.0
+
+
+def test_the_same_dam_break_at_24_and_240_fps_and_two_max_dt(tmp_path):
+    # At 0.25 s (the front near 1.8 column widths): fps 24, fps 240 and fps 24 with max_dt = 1 ms
+    # (80, 105 and 252 steps). Measured: centroids within 1.3 mm = 0.10 dx of each other (the time
+    # integration's own spread, with the correction off, is 1.8 mm), mean speeds within 0.6%, fastest
+    # particles within 1.2%, volume drift -0.18%, -0.13%, -0.11% (spread 0.07%). With the old share
+    # per step (0.3) the drifts were -0.10%, -0.08%, +0.06%: a spread of 0.16%, outside the bound.
+    runs = [dam(tmp_path, 24), dam(tmp_path, 240), dam(tmp_path, 24, max_dt=1e-3)]
+    states = [liquid_state(sim) for sim, _ in runs]
+    drifts = np.array([d for _, d in runs])
+    dx = runs[0][0].grid.dx
+    centroids = np.array([s[0] for s in states])
+    print(f"dam break: steps {[sim.stats.steps for sim, _ in runs]}, centroids {np.round(centroids, 5).tolist()}, "
+          f"mean speeds {[round(float(s[1]), 4) for s in states]}, max {[round(float(s[2]), 4) for s in states]}, "
+          f"volume drift {np.round(100 * drifts, 3).tolist()} %")
+    assert [sim.stats.steps for sim, _ in runs][2] > 2 * runs[0][0].stats.steps  # max_dt did bind
+    assert np.ptp(centroids, axis=0).max() < 0.15 * dx
+    means, fastest = np.array([s[1] for s in states]), np.array([s[2] for s in states])
+    assert np.ptp(means) < 0.02 * means.mean()
+    assert np.ptp(fastest) < 0.03 * fastest.mean()
+    assert np.ptp(drifts) < 1e-3
+    assert np.abs(drifts).max() < 5e-3
+
+
+@pytest.mark.parametrize("tau", [None, MIN_VOLUME_RELAXATION], ids=["default", "strongest"])
+def test_resting_water_stays_at_rest_under_tiny_steps(tmp_path, tau):
+    # 20 steps of 1 microsecond: the correction per second is the same as at any step. Measured
+    # fastest particle 0.090 m/s (default 0.01 s) and 0.90 m/s at the strongest setting, 1 ms (about
+    # 0.1 dx / tau, dx = 3.1 cm: the seeding noise undone at the rate asked); the old share per step
+    # reached 122 m/s. Bound: 0.2 dx / tau. Nothing collapses: every cell keeps particles.
+    solver = {} if tau is None else {"volume_relaxation_time": tau}
+    sim = Simulation(tank_2d(depth=0.5, cells=32, out=tmp_path / "t.usdc", max_dt=1e-6, **solver), "cpu")
+    cells0 = occupied_cells(sim)
+    for _ in range(20):
+        sim.step(sim.stable_dt())
+    _, mean, fastest = liquid_state(sim)
+    tau = tau or sim.scene.solver.volume_relaxation_time
+    print(f"rest, tau {tau} s, 20 steps of 1e-6 s: mean {mean:.4f} m/s, fastest {fastest:.4f} m/s")
+    assert fastest < 0.2 * sim.grid.dx / tau
+    assert occupied_cells(sim) == cells0
+
+
+def test_the_strongest_correction_does_not_collapse_a_dam_break(tmp_path):
+    # tau = 1 ms (the bound), with CFL steps of about 3 ms: the whole excess per step (the cap).
+    # Measured: volume drift +0.09% (default -0.18%), 136 occupied cells (default 137), fastest
+    # 2.21 m/s. Bounds: the volume within 1%, 95% of the default's cells, 1.5x its fastest particle.
+    sim, drift = dam(tmp_path, 24, volume_relaxation_time=MIN_VOLUME_RELAXATION)
+    ref, ref_drift = dam(tmp_path, 24)
+    cells, ref_cells = occupied_cells(sim), occupied_cells(ref)
+    print(f"strongest correction: drift {100 * drift:.3f}% (default {100 * ref_drift:.3f}%), occupied cells "
+          f"{cells} (default {ref_cells}), fastest {liquid_state(sim)[2]:.3f} m/s")
+    assert abs(drift) < 0.01
+    assert cells >= 0.95 * ref_cells
+    assert liquid_state(sim)[2] < 1.5 * liquid_state(ref)[2]
+
+
+def expansion(tmp_path, max_dt=None, t_end=0.0015):
+    """tests/test_hard_cases.py's gas at 10 atm (gauge 9 atm) in a 2D tank, to t_end."""
+    scene = Scene(domain=Domain(size=(0.1, 0.2), cell_size=0.0025),
+                  materials={"water": Material("water"), "air": Material("air", kind="gas")},
+                  shapes=[Box("water", (0.0, 0.0), (0.1, 0.1)), Sphere("air", (0.05, 0.03), 0.004, pressure=9 * P_ATM)],
+                  solver=SolverSettings(max_dt=max_dt), output=Output(path=str(tmp_path / "e.usdc"), fps=60))
+    sim = Simulation(scene, "cpu")
+    limits = sim.dt_limits()
+    sim.advance_to(t_end)
+    return sim, limits, scene
+
+
+def test_a_violent_expansion_starts_with_resolved_steps(tmp_path):
+    # The expansion time is R0 sqrt(rho / dp) = 1.3e-4 s. Before the gas_expansion limit the first
+    # step was 8 ms and at 1.5 ms the liquid moved at 0.24 m/s mean, 0.99 m/s at most; resolved
+    # steps (max_dt 2e-5 s) give 3.06 and 7.82 m/s. Measured now: first step 4.05e-5 s (35 steps),
+    # 2.95 and 7.59 m/s (-3.5%, -2.9%). Bounds: 15% of the resolved run (the old run is 90% off).
+    # The limit's value equals scene/limits.py's estimate before the run (a 3% change of either fails).
+    sim, limits, scene = expansion(tmp_path)
+    ref, _, _ = expansion(tmp_path, max_dt=2e-5)
+    assert min(limits, key=limits.get) == "gas_expansion" and "gas_expansion" in STEP_FIXES
+    assert limits["gas_expansion"] == pytest.approx(step_limits(scene.validate())["gas_expansion"], rel=1e-6)
+    t_exp = 0.004 * math.sqrt(1000.0 / (9 * P_ATM))
+    assert sim.stats.dt_history[0] < 0.5 * t_exp
+    (_, mean, fastest), (_, ref_mean, ref_fastest) = liquid_state(sim), liquid_state(ref)
+    print(f"expansion: first step {sim.stats.dt_history[0]:.3g} s, {sim.stats.steps} steps; liquid mean "
+          f"{mean:.3f} m/s (resolved {ref_mean:.3f}), fastest {fastest:.3f} (resolved {ref_fastest:.3f})")
+    assert mean == pytest.approx(ref_mean, rel=0.15)
+    assert fastest == pytest.approx(ref_fastest, rel=0.15)
+
+
+def test_a_bubble_at_its_hydrostatic_pressure_gets_no_pressure_limit(tmp_path):
+    # The pressure part of gas_expansion counts only what exceeds the domain's hydrostatic head:
+    # an ordinary bubble's first step is the CFL one.
+    scene = tank_2d(cells=16, depth=0.6, out=tmp_path / "h.usdc")
+    scene.materials["air"] = Material("air", kind="gas")
+    scene.shapes.append(Sphere("air", center=(0.5, 0.3), radius=0.1, pressure=1000.0 * 9.81 * 0.3))
+    sim = Simulation(scene.validate(), "cpu")
+    assert "gas_expansion" not in sim.dt_limits() and "gas_expansion" not in step_limits(scene)
+
+
+@pytest.mark.xfail(strict=True, reason="a near-vacuum gas (1 Pa, 1e-5 of its rest density) is not "
+                   "resolved: its particles reach 4e4 m/s inside the cavity, the steps fall to 1e-9 s, and "
+                   "the cavity first grows (R 1.2 R0 after one step); see the report of issue #12")
+def test_a_near_vacuum_cavity_collapses_on_the_cylindrical_rayleigh_time(tmp_path):
+    # 2D analogue of Rayleigh's collapse (tests/cavity.py): an empty cylinder R0 in a free water
+    # annulus 3 R0 across reaches R = R0/2 at 0.969 R0 sqrt(rho/p_inf) (RK4; R -> 0 at 1.168, 3D
+    # Rayleigh 0.915). At 8 cells per R0 it should arrive within 10% and keep the water's volume.
+    from cavity import T_UNIT, collapse_time
+
+    run = collapse_time(8, tmp_path, radii=(0.5,), t_end=1.6, max_steps=150)
+    print(run)
+    assert run["t"][0.5] is not None
+    assert run["t"][0.5] == pytest.approx(run["t_ref"][0.5], rel=0.10)
+    assert run["liquid_after"]["volume_share"] > 0.95

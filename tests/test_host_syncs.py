@@ -18,8 +18,8 @@ from test_subgrid import splash_scene
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
 # The step's own reads: the solve's cell counts with the non-finite count (3 ints), and the
-# read-back at its end, the fastest particle with entrainment's count (2 floats).
-STEP_READS, STEP_ELEMENTS = 2, 5
+# read-back at its end, the fastest particle with entrainment's count and the gas's two step measures (4 floats).
+STEP_READS, STEP_ELEMENTS = 2, 7
 
 
 def liquid_scene(tmp_path):
@@ -80,7 +80,12 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
     convert_steps = 0
     for reads, iterations, solves in counted_steps(sim, 16):
         modules = dict(reads.by_module)
-        # Entrainment, emitters, colliders, foam, gas, tension, viscosity: no read at all.
+        # Viscosity (explicit here): its stiffness rate, one float, by which the host picks the substeps.
+        assert modules.pop("physics.viscous_solve") == 1
+        if sim.stats.steps == 1:  # the gas's start pressure, read once before any step's read-back exists
+            assert modules.pop("physics.gas") == 1
+        # Entrainment, emitters, colliders, foam, gas, tension: no read at all (the gas's step measures
+        # ride on the step's read-back).
         assert set(modules) <= {"core.simulation", "effects.subgrid", *SOLVER_MODULES}, modules
         assert modules["core.simulation"] == STEP_READS and reads.elements["core.simulation"] == STEP_ELEMENTS
         assert_solver_within_bound(reads, iterations, solves)
@@ -96,6 +101,7 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
         rows = (reads.elements["effects.subgrid"] - 2) / CANDIDATE_COLUMNS
         assert rows == int(rows) and 0.5 * candidates <= rows <= 2 * candidates < 0.5 * n, (rows, candidates, n)
     assert convert_steps == 8
+    assert sim.stage("viscosity").counts["implicit_steps"] == 0  # the one read above is the explicit path's
     assert sim.stage("entrainment").seeded > 0  # it had work, with no read of its own
     assert sim.launches["trapped_air"] == sim.stats.steps
 

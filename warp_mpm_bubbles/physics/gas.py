@@ -129,13 +129,14 @@ def gas_step_measures(
     law: wp.array(dtype=wp.int32),
     gamma: wp.array(dtype=float),
     p_atm: float,
+    slot: int,
     out: wp.array(dtype=float),
 ):
-    """out[0]: the largest |gauge pressure| of the gas particles."""
+    """out[slot]: the largest |gauge pressure| of the gas particles."""
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    wp.atomic_max(out, 0, wp.abs(gas_pressure(law[p], J[p], gamma[p], p_atm)))
+    wp.atomic_max(out, slot, wp.abs(gas_pressure(law[p], J[p], gamma[p], p_atm)))
 
 
 @wp.kernel
@@ -147,16 +148,17 @@ def gas_cell_expansion(
     vel_w: wp.array3d(dtype=float),
     dx: float,
     dim: int,
+    slot: int,
     out: wp.array(dtype=float),
 ):
-    """out[1]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells."""
+    """out[slot]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells."""
     i, j, k = wp.tid()
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
         return
     div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
     if dim == 3:
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
-    wp.atomic_max(out, 1, wp.abs(div) / dx)
+    wp.atomic_max(out, slot, wp.abs(div) / dx)
 
 
 def pressure_step(cfl: float, dx: float, gauge: float, rho: float, hydrostatic: float) -> float:
@@ -192,9 +194,13 @@ class GasStage(Stage):
             f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
         self.vents = "foam" not in sim.effects
-        self.measures = wp.zeros(2, dtype=float, device=sim.device)
         self._limit = (None, math.inf)  # dt_limit is asked more than once per step
-        sim.host_state["gas_expansion_rate"] = np.zeros(1)  # 1/s, the last step's, for dt_limit
+        # The last step's measures for dt_limit, from the step's one read-back (checkpointed: a
+        # resumed run steps alike): the largest |gauge pressure| (NaN: not measured yet), and the
+        # fastest relative volume change (1/s).
+        sim.host_state["gas_gauge"] = np.full(1, np.nan)
+        sim.host_state["gas_expansion_rate"] = np.zeros(1)
+        sim.report_readers.append(self._read_report)
         mats = list(sim.scene.materials.values())
         liquids = [m.density for m in mats if m.kind == "liquid"] or [m.density for m in mats if m.is_gas]
         self.rho = min(liquids)  # the lightest fluid the gas pushes: the fastest response
@@ -211,11 +217,9 @@ class GasStage(Stage):
         key = (sim.stats.steps, sim.time, sim.particles.count)
         if self._limit[0] == key:
             return self._limit[1]
-        p = sim.particles
-        self.measures.zero_()
-        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
-                                                 sim.scene.domain.ambient_pressure, self.measures])
-        gauge = float(self.measures.numpy()[0])
+        gauge = float(sim.host_state["gas_gauge"][0])
+        if math.isnan(gauge):  # the first step (or an older checkpoint): measured once here
+            gauge = float(sim.read_host(self._measure_gauge(sim, wp.zeros(4, dtype=float, device=sim.device)))[2])
         cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
         # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
         limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
@@ -228,6 +232,23 @@ class GasStage(Stage):
             limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))
         self._limit = (key, limit)
         return limit
+
+    def _measure_gauge(self, sim, out):
+        p = sim.particles
+        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
+                                                 sim.scene.domain.ambient_pressure, 2, out])
+        return out
+
+    def end_step(self, sim, dt: float):
+        # The next step's limit from this step's end state, carried by the step's one read-back.
+        g, f = sim.grid, sim.fields
+        self._measure_gauge(sim, f.max_speed)
+        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim, 3,
+                                                 f.max_speed])
+
+    def _read_report(self, sim, report):
+        sim.host_state["gas_gauge"][0] = float(report[2])
+        sim.host_state["gas_expansion_rate"][0] = float(report[3])
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -267,14 +288,9 @@ class GasStage(Stage):
         sim.extend(f.gas_vel, f.gas_valid)
 
     def before_g2p(self, sim, dt: float):
-        # The gas's fastest relative volume change, for the next step's limit (dt_limit).
-        g, f, p = sim.grid, sim.fields, sim.particles
-        self.measures.zero_()
-        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim,
-                                                 self.measures])
-        sim.host_state["gas_expansion_rate"][0] = float(self.measures.numpy()[1])
         if not self.sharp:
             return
+        g, f, p = sim.grid, sim.fields, sim.particles
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).

@@ -33,7 +33,7 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g
+from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
@@ -202,7 +202,7 @@ class Simulation:
         f, p = self.fields, self.particles
         for arr in (*f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite):
             arr.zero_()
-        self.launch(p2g, p.count,
+        self.launch(P2G[self.grid.dim], p.count,
                     [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
 
     def _grid_velocity_and_cells(self, dt: float):
@@ -268,7 +268,7 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        self.launch(g2p_advect, p.count,
+        self.launch(G2P[self.grid.dim], p.count,
                     [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells, f.max_speed])
 
     # ---------------------------------------------------------------------------- time steps

@@ -37,6 +37,7 @@ from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
+SORT_EVERY = 10  # steps between sorts of the particles by cell (benchmarks/transfers.py; 0: never)
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 # Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
 TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
@@ -84,6 +85,7 @@ class Simulation:
         self.time = 0.0
         self.frame = 0
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
+        self.sort_every = SORT_EVERY  # by step count, so a resumed run sorts when the whole one did
         self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64)}
         self._init_geometry()
         self.particles = ParticleState(self.device)
@@ -176,6 +178,8 @@ class Simulation:
     def step(self, dt: float):
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
+            if self.sort_every and self.stats.steps % self.sort_every == 0:
+                self.sort_particles()
             self.particles_to_grid()
             self._run("after_p2g", dt)  # gas sums
         with self.timer("grid"):
@@ -196,6 +200,11 @@ class Simulation:
         self.max_particle_speed = float(self.fields.max_speed.numpy()[0])  # g2p and the stages that move particles
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
+
+    def sort_particles(self):
+        """Order the particles by cell (ParticleState.sort_by_cell): the transfers then read and add
+        to the grid in memory order. Read-outs (particles_numpy) stay in id order."""
+        self.particles.sort_by_cell(self.geometry, self.grid.cells, self.launch)
 
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
@@ -333,7 +342,10 @@ class Simulation:
         """
         p = self.particles
         view = {name: p.numpy(name) for name in ("x", "v", "material", "J", "mass", "vol0", "phase", "ids")}
-        keep = slice(None) if include_retired else p.numpy("active") == 1
+        keep = np.arange(p.count) if include_retired else np.flatnonzero(p.numpy("active") == 1)
+        ids = view["ids"][keep]
+        if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # sorted by cell: back to id order
+            keep = keep[np.argsort(ids, kind="stable")]
         return {
             "positions": view["x"][keep].copy(),
             "velocities": view["v"][keep].copy(),

@@ -2,7 +2,9 @@
 
 `ParticleState` holds one array per particle field, all of the same capacity, the first `count`
 in use. Every scene has the fields of PARTICLE_FIELDS; a stage adds its own with `add_field`
-(foam lifetimes, sub-grid drag impulses), and those grow, compact and checkpoint with the rest.
+(foam lifetimes, sub-grid drag impulses), and those grow, compact, sort and checkpoint with the rest.
+`sort_by_cell` orders the particles by the cell they are in (the step does it every few steps), so
+the transfers read and add to the grid in memory order; `ids` moves with the rest.
 
 `GridFields` holds the MAC grid's face and cell arrays, rebuilt by every step (only `pressure`,
 the solver's warm start, and `vented_mass`, the gas ledger, carry over and are checkpointed). A
@@ -12,8 +14,12 @@ placeholders until the gas stage replaces them (the core kernels take them as ar
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import warp as wp
+
+from .geometry import GridGeometry
 
 # The per-particle arrays every scene has: position (m), velocity (m/s), APIC affine matrix (1/s),
 # mass (kg), rest volume (m^3), J = volume / rest volume, grid.PHASE_*, 1 while simulated (0:
@@ -24,12 +30,47 @@ PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vo
 GRID_CHECKPOINT = ("pressure", "vented_mass")  # what a step reads from the previous one
 
 
+@wp.kernel(enable_backward=False)
+def cell_keys(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), geo: GridGeometry, cells: wp.vec3i,
+              keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32)):
+    """Sort key of each particle: its cell's linear index (z fastest, as the grid arrays are laid
+    out); retired particles and non-finite positions sort last (p2g reports the latter)."""
+    p = wp.tid()
+    order[p] = p
+    xp = x[p]
+    if active[p] == 0 or not wp.isfinite(xp):
+        keys[p] = cells[0] * cells[1] * cells[2]
+        return
+    c = (xp - geo.origin) / geo.dx
+    i = wp.clamp(int(wp.floor(c[0])), 0, cells[0] - 1)
+    j = wp.clamp(int(wp.floor(c[1])), 0, cells[1] - 1)
+    k = wp.clamp(int(wp.floor(c[2])), 0, cells[2] - 1)
+    keys[p] = (i * cells[1] + j) * cells[2] + k
+
+
+@wp.kernel(enable_backward=False)
+def gather_rows(src: wp.array2d(dtype=wp.uint32), order: wp.array(dtype=wp.int32), dst: wp.array2d(dtype=wp.uint32)):
+    """dst[p] = src[order[p]], one 32-bit word of a particle's value per thread (any field type)."""
+    p, w = wp.tid()
+    dst[p, w] = src[order[p], w]
+
+
+def _words(arr, n: int):
+    """The first n elements of a contiguous particle array seen as rows of 32-bit words."""
+    size = wp.types.type_size_in_bytes(arr.dtype)
+    if size % 4:
+        raise TypeError(f"particle field dtype {arr.dtype} is not a whole number of 32-bit words; sort_by_cell "
+                        "cannot move it (use a 32- or 64-bit type)")
+    return wp.array(ptr=arr.ptr, dtype=wp.uint32, shape=(n, size // 4), device=arr.device)
+
+
 class ParticleState:
     """Particle arrays on `device`; `count` of them in use, the arrays hold capacity >= that."""
 
     def __init__(self, device):
         self.device = device
         self.count = 0
+        self._sort_keys = self._sort_order = self._sort_scratch = None  # sort_by_cell's buffers
         self.fields = dict(PARTICLE_FIELDS)
         for name, dtype in self.fields.items():
             setattr(self, name, wp.zeros(0, dtype=dtype, device=device))
@@ -76,6 +117,31 @@ class ParticleState:
                 wp.copy(compacted, wp.array(data, dtype=dtype, device=self.device), count=len(keep))
             setattr(self, name, compacted)
         self.count = len(keep)
+
+    def sort_by_cell(self, geometry, cells, launch=None):
+        """Reorder every field (stages' fields included) by cell, in place (the arrays stay the same
+        objects). Warp's radix sort is stable, so particles in one cell keep their order and the
+        result is the same on every run; it changes the order of the transfers' float sums only.
+        `launch(kernel, dim, inputs)` runs the kernels (Simulation.launch counts them)."""
+        n = self.count
+        if n == 0:
+            return
+        launch = launch or (lambda k, dim, inputs: wp.launch(k, dim=dim, inputs=inputs, device=self.device))
+        words = max(wp.types.type_size_in_bytes(d) for d in self.fields.values()) // 4
+        if self._sort_keys is None or len(self._sort_keys) < 2 * n or len(self._sort_scratch) < n * words:
+            self._sort_keys = wp.zeros(2 * self.capacity, dtype=wp.int32, device=self.device)
+            self._sort_order = wp.zeros(2 * self.capacity, dtype=wp.int32, device=self.device)
+            self._sort_scratch = wp.zeros(self.capacity * words, dtype=wp.uint32, device=self.device)
+        keys, order = self._sort_keys, self._sort_order
+        cells = wp.vec3i(*cells)
+        launch(cell_keys, n, [self.x, self.active, geometry, cells, keys, order])
+        end_bit = max(1, math.ceil(math.log2(cells[0] * cells[1] * cells[2] + 1)))
+        wp.utils.radix_sort_pairs(keys, order, n, end_bit=end_bit)
+        for name in self.fields:
+            field = _words(getattr(self, name), n)
+            scratch = wp.array(ptr=self._sort_scratch.ptr, dtype=wp.uint32, shape=field.shape, device=self.device)
+            launch(gather_rows, field.shape, [field, order, scratch])
+            wp.copy(field, scratch)
 
     def numpy(self, name: str) -> np.ndarray:
         """The in-use part of one field (a view on the CPU device: the next step changes it)."""

@@ -16,7 +16,10 @@ Per variant: --warmup full steps, then --steps full steps timed by the stage tim
 p2g, grid, pressure, extend, g2p; the sort is charged to p2g), and --reps repetitions of each
 transfer alone (p2g: Simulation.particles_to_grid(); g2p: the g2p launch with dt = 0, which leaves
 the particles where they are) and of Simulation.sort_particles() where the tree has it.
-Medians over rounds. Writes benchmarks/results/transfers_g<N>[_<label>].{json,md}.
+Medians over rounds. Times are the process's CPU time (time.process_time; Warp runs CPU kernels on
+the calling thread), not wall time: on a shared machine wall time mostly measures the other jobs.
+--clock wall switches to wall time (a GPU needs it). Writes
+benchmarks/results/transfers_g<N>[_<label>].{json,md}.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,17 +70,39 @@ def shuffle(sim, seed: int = 0):
         getattr(p, name)[: p.count].assign(wp.array(data, dtype=dtype, device=sim.device))
 
 
+CLOCK = time.process_time  # the worker's clock (--clock)
+
+
 def timed(fn, reps: int) -> float:
     """Median seconds of `reps` calls."""
     import warp as wp
 
     out = []
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0 = CLOCK()
         fn()
         wp.synchronize()
-        out.append(time.perf_counter() - t0)
+        out.append(CLOCK() - t0)
     return statistics.median(out)
+
+
+def stage_timer(device):
+    """The simulation's StageTimer on CLOCK."""
+    import warp as wp
+    from warp_mpm_bubbles.core.timing import StageTimer
+
+    class Timer(StageTimer):
+        @contextmanager
+        def __call__(self, stage: str):
+            start = CLOCK()
+            try:
+                yield
+            finally:
+                if self.device.is_cuda:
+                    wp.synchronize_device(self.device)
+                self.seconds[stage] = self.seconds.get(stage, 0.0) + CLOCK() - start
+
+    return Timer(device)
 
 
 def worker(args) -> int:
@@ -84,7 +110,9 @@ def worker(args) -> int:
 
     wp.config.quiet = True
     from warp_mpm_bubbles.core.simulation import Simulation, SolverStats
-    from warp_mpm_bubbles.core.timing import StageTimer
+
+    global CLOCK
+    CLOCK = time.perf_counter if args.clock == "wall" else time.process_time
 
     with tempfile.TemporaryDirectory() as out_dir:
         sim = Simulation(block_scene(args.grid, out_dir), device=args.device)
@@ -94,12 +122,12 @@ def worker(args) -> int:
         shuffle(sim)
     for _ in range(args.warmup):
         sim.step(sim.stable_dt())
-    sim.timer, sim.stats = StageTimer(sim.device), SolverStats()
-    t0 = time.perf_counter()
+    sim.timer, sim.stats = stage_timer(sim.device), SolverStats()
+    t0 = CLOCK()
     for _ in range(args.steps):
         sim.step(sim.stable_dt())
     wp.synchronize()
-    wall = time.perf_counter() - t0
+    wall = CLOCK() - t0
     result = {"particles": sim.num_particles, "ms_per_step": 1e3 * wall / args.steps,
               "stages": {k: 1e3 * t / args.steps for k, t in sim.timer.seconds.items()}}
     result["p2g_alone"] = 1e3 * timed(sim.particles_to_grid, args.reps)
@@ -115,7 +143,7 @@ def worker(args) -> int:
 def call_worker(tree: str, order: str, sort: str, args) -> dict:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--grid", str(args.grid), "--order", order,
            "--sort", sort, "--warmup", str(args.warmup), "--steps", str(args.steps), "--reps", str(args.reps),
-           "--device", args.device]
+           "--device", args.device, "--clock", args.clock]
     env = {**os.environ, "PYTHONPATH": tree}
     proc = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
@@ -141,7 +169,8 @@ def markdown(meta: dict, summary: dict) -> str:
     names = list(summary)
     out = [f"# Transfers: {meta['grid']}^3 grid, {meta['particles']:,} particles on {meta['device']}", "",
            f"- date: {meta['date']}", f"- command: `{meta['command']}`",
-           f"- {meta['rounds']} alternating rounds, each variant in its own process; medians over rounds",
+           f"- {meta['rounds']} alternating rounds, each variant in its own process; medians over rounds; "
+           f"{meta['clock']} time; load average at the end {meta['load_average']}",
            f"- trees: this = {meta['this']}" + (f"; compare = {meta['compare']}" if meta["compare"] else ""), "",
            "| ms | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
     rows = [("p2g alone", "p2g_alone"), ("g2p alone", "g2p_alone"), ("sort alone", "sort_alone")]
@@ -163,6 +192,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sorts", default="default,off", help="comma-separated: default, off")
     ap.add_argument("--compare", default=None, help="another source tree (a directory holding warp_mpm_bubbles)")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="CPU time (default) or wall time")
     ap.add_argument("--label", default=None)
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--order", default="seeded", help=argparse.SUPPRESS)
@@ -186,7 +216,8 @@ def main(argv=None) -> int:
     meta = {"date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "grid": args.grid,
             "particles": rounds[todo[0][0]][0]["particles"], "device": args.device, "rounds": args.rounds,
             "command": shlex.join([sys.executable, *sys.argv] if argv is None else [__file__, *argv]),
-            "this": str(ROOT), "compare": args.compare, "load_average": os.getloadavg()}
+            "this": str(ROOT), "compare": args.compare, "clock": args.clock,
+            "load_average": [round(x, 1) for x in os.getloadavg()]}
     text = markdown(meta, summary)
     print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)

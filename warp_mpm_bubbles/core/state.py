@@ -50,9 +50,11 @@ def cell_keys(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), geo:
 
 @wp.kernel(enable_backward=False)
 def gather_rows(src: wp.array2d(dtype=wp.uint32), order: wp.array(dtype=wp.int32), dst: wp.array2d(dtype=wp.uint32)):
-    """dst[p] = src[order[p]], one 32-bit word of a particle's value per thread (any field type)."""
-    p, w = wp.tid()
-    dst[p, w] = src[order[p], w]
+    """dst[p] = src[order[p]]: a particle's value as 32-bit words (any field type)."""
+    p = wp.tid()
+    q = order[p]
+    for w in range(src.shape[1]):
+        dst[p, w] = src[q, w]
 
 
 def _words(arr, n: int):
@@ -140,7 +142,7 @@ class ParticleState:
         for name in self.fields:
             field = _words(getattr(self, name), n)
             scratch = wp.array(ptr=self._sort_scratch.ptr, dtype=wp.uint32, shape=field.shape, device=self.device)
-            launch(gather_rows, field.shape, [field, order, scratch])
+            launch(gather_rows, n, [field, order, scratch])
             wp.copy(field, scratch)
 
     def numpy(self, name: str) -> np.ndarray:

@@ -33,7 +33,7 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G
+from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, split_pairs
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
@@ -209,10 +209,13 @@ class Simulation:
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
         f, p = self.fields, self.particles
-        for arr in (*f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite):
+        for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
         self.launch(P2G[self.grid.dim], p.count,
-                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
+                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite])
+        for a in range(3):
+            self.launch(split_pairs, f.mom[a].shape, [f.face_pairs[a], f.mom[a], f.face_mass[a]])
+        self.launch(split_pairs, self.grid.cells, [f.cell_pairs, f.liq_mass, f.liq_volume])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f = self.grid, self.fields

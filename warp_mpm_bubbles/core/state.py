@@ -159,6 +159,8 @@ class GridFields:
         self.mom, self.face_mass, self.vel, self.inv_rho = faces(), faces(), faces(), faces()
         self.vel_tmp, self.valid, self.valid_tmp = faces(), faces(wp.int32), faces(wp.int32)
         self.liq_mass, self.liq_volume = cells(), cells()
+        # p2g adds (momentum, mass) per face and (mass, volume) per cell as pairs, then splits them.
+        self.face_pairs, self.cell_pairs = faces(wp.vec2), cells(wp.vec2)
         self.cell_count, self.types, self.phase_cells = cells(wp.int32), cells(wp.int32), cells(wp.int32)
         self.pressure, self.diag, self.rhs = cells(), cells(), cells()
         self.extra_diag = cells()  # kappa/dt^2 of gas cells

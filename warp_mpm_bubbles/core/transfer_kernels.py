@@ -273,8 +273,9 @@ def wall_stopped(moved: wp.vec3, kept: wp.vec3, vp: wp.vec3, dim: int):
 # share their per-axis weights (each axis has nodes on faces, offset 0, or at centres, offset 0.5),
 # and one loop over the 3x3x3 nodes (3x3x1 in 2D, fixed at compile time so the loops unroll) does
 # every grid's adds. p2g's arithmetic per node is that of make_stencil, so its sums are bit for bit
-# those of one pass per component (benchmarks/transfers.py: 0.7x the time of that; its cost is now
-# the 270 read-modify-writes per particle). g2p applies the weights one axis at a time (0.75x the
+# those of one pass per component. Its cost is the number of read-modify-writes (the same per
+# float as per vec3), so it adds (momentum, mass) pairs, split afterwards by split_pairs: 135 per
+# particle instead of 270 (benchmarks/transfers.py: 0.75x, and 0.7x for the fused loop before). g2p applies the weights one axis at a time (0.75x the
 # time of the fused loop, equal to it within float32 rounding).
 
 
@@ -344,13 +345,23 @@ def component_stencil(s: MacStencil, a: int):
 
 
 @wp.func
-def splat_node(mom: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), s: Stencil, i: int, j: int, k: int,
-               dx: float, m: float, vel: float, grad: wp.vec3):
+def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: int, dx: float, m: float, vel: float,
+               grad: wp.vec3):
+    """Node (i, j, k)'s share of one particle's APIC momentum and mass of one component, added as a
+    pair: one read-modify-write instead of two."""
     w = s.wx[i] * s.wy[j] * s.wz[k]
     dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
     wm = w * m
-    wp.atomic_add(mom, s.base[0] + i, s.base[1] + j, s.base[2] + k, wm * (vel + wp.dot(grad, dpos)))
-    wp.atomic_add(mass, s.base[0] + i, s.base[1] + j, s.base[2] + k, wm)
+    wp.atomic_add(face, s.base[0] + i, s.base[1] + j, s.base[2] + k, wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm))
+
+
+@wp.kernel(enable_backward=False)
+def split_pairs(pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float)):
+    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read."""
+    i, j, k = wp.tid()
+    q = pairs[i, j, k]
+    first[i, j, k] = q[0]
+    second[i, j, k] = q[1]
 
 
 def _p2g_kernel(dim: int):
@@ -366,14 +377,10 @@ def _p2g_kernel(dim: int):
         phase: wp.array(dtype=wp.int32),
         active: wp.array(dtype=wp.int32),
         geo: GridGeometry,
-        mom_u: wp.array3d(dtype=float),
-        mom_v: wp.array3d(dtype=float),
-        mom_w: wp.array3d(dtype=float),
-        mass_u: wp.array3d(dtype=float),
-        mass_v: wp.array3d(dtype=float),
-        mass_w: wp.array3d(dtype=float),
-        cell_mass: wp.array3d(dtype=float),
-        cell_volume: wp.array3d(dtype=float),
+        face_u: wp.array3d(dtype=wp.vec2),
+        face_v: wp.array3d(dtype=wp.vec2),
+        face_w: wp.array3d(dtype=wp.vec2),
+        cell_mv: wp.array3d(dtype=wp.vec2),
         cell_count: wp.array3d(dtype=wp.int32),
         nonfinite: wp.array(dtype=wp.int32),
     ):
@@ -406,14 +413,13 @@ def _p2g_kernel(dim: int):
         for i in range(3):
             for j in range(3):
                 for k in range(wp.static(NK)):
-                    splat_node(mom_u, mass_u, su, i, j, k, dx, m, vp[0], Cp[0])
-                    splat_node(mom_v, mass_v, sv, i, j, k, dx, m, vp[1], Cp[1])
+                    splat_pair(face_u, su, i, j, k, dx, m, vp[0], Cp[0])
+                    splat_pair(face_v, sv, i, j, k, dx, m, vp[1], Cp[1])
                     if wp.static(dim == 3):
-                        splat_node(mom_w, mass_w, sw, i, j, k, dx, m, vp[2], Cp[2])
+                        splat_pair(face_w, sw, i, j, k, dx, m, vp[2], Cp[2])
                     if liquid:
                         w = sc.wx[i] * sc.wy[j] * sc.wz[k]
-                        wp.atomic_add(cell_mass, sc.base[0] + i, sc.base[1] + j, sc.base[2] + k, w * m)
-                        wp.atomic_add(cell_volume, sc.base[0] + i, sc.base[1] + j, sc.base[2] + k, w * vol)
+                        wp.atomic_add(cell_mv, sc.base[0] + i, sc.base[1] + j, sc.base[2] + k, wp.vec2(w * m, w * vol))
         c = (xp - origin) * inv_dx
         wp.atomic_add(cell_count, int(wp.floor(c[0])), int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
 

@@ -85,7 +85,8 @@ class Simulation:
         self.time = 0.0
         self.frame = 0
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
-        self.sort_every = SORT_EVERY  # by step count, so a resumed run sorts when the whole one did
+        self.sort_every = SORT_EVERY
+        self._sorted_at = 0  # the step of the last sort by cell
         self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64)}
         self._init_geometry()
         self.particles = ParticleState(self.device)
@@ -178,7 +179,7 @@ class Simulation:
     def step(self, dt: float):
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
-            if self.sort_every and self.stats.steps % self.sort_every == 0:
+            if self.sort_every and (self.particles.in_id_order or self.stats.steps - self._sorted_at >= self.sort_every):
                 self.sort_particles()
             self.particles_to_grid()
             self._run("after_p2g", dt)  # gas sums
@@ -203,8 +204,10 @@ class Simulation:
 
     def sort_particles(self):
         """Order the particles by cell (ParticleState.sort_by_cell): the transfers then read and add
-        to the grid in memory order. Read-outs (particles_numpy) stay in id order."""
+        to the grid in memory order. Read-outs (particles_numpy) stay in id order, and advance_to
+        returns the arrays in id order (a particle keeps its index from one frame to the next)."""
         self.particles.sort_by_cell(self.geometry, self.grid.cells, self.launch)
+        self._sorted_at = self.stats.steps
 
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
@@ -317,6 +320,8 @@ class Simulation:
             self.time = t_end if n == 1 else self.time + dt
             if on_step:
                 on_step(dt, t_end - self.time)
+        if not self.particles.in_id_order:
+            self.particles.sort_by_id(int(self.host_state["next_id"][0]), self.launch)
 
     @property
     def frame_dt(self) -> float:

@@ -4,7 +4,8 @@
 in use. Every scene has the fields of PARTICLE_FIELDS; a stage adds its own with `add_field`
 (foam lifetimes, sub-grid drag impulses), and those grow, compact, sort and checkpoint with the rest.
 `sort_by_cell` orders the particles by the cell they are in (the step does it every few steps), so
-the transfers read and add to the grid in memory order; `ids` moves with the rest.
+the transfers read and add to the grid in memory order; `ids` moves with the rest, and `sort_by_id`
+puts them back in the order they were added (Simulation.advance_to does, before it returns).
 
 `GridFields` holds the MAC grid's face and cell arrays, rebuilt by every step (only `pressure`,
 the solver's warm start, and `vented_mass`, the gas ledger, carry over and are checkpointed). A
@@ -49,6 +50,13 @@ def cell_keys(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), geo:
 
 
 @wp.kernel(enable_backward=False)
+def id_keys(ids: wp.array(dtype=wp.int64), keys: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)):
+    p = wp.tid()
+    order[p] = p
+    keys[p] = ids[p]
+
+
+@wp.kernel(enable_backward=False)
 def gather_rows(src: wp.array2d(dtype=wp.uint32), order: wp.array(dtype=wp.int32), dst: wp.array2d(dtype=wp.uint32)):
     """dst[p] = src[order[p]]: a particle's value as 32-bit words (any field type)."""
     p = wp.tid()
@@ -72,7 +80,8 @@ class ParticleState:
     def __init__(self, device):
         self.device = device
         self.count = 0
-        self._sort_keys = self._sort_order = self._sort_scratch = None  # sort_by_cell's buffers
+        self._sort_keys = self._sort_order = self._sort_scratch = None  # the sorts' buffers
+        self.in_id_order = True  # as appended and compacted; False after sort_by_cell
         self.fields = dict(PARTICLE_FIELDS)
         for name, dtype in self.fields.items():
             setattr(self, name, wp.zeros(0, dtype=dtype, device=device))
@@ -125,20 +134,43 @@ class ParticleState:
         objects). Warp's radix sort is stable, so particles in one cell keep their order and the
         result is the same on every run; it changes the order of the transfers' float sums only.
         `launch(kernel, dim, inputs)` runs the kernels (Simulation.launch counts them)."""
-        n = self.count
+        n, launch = self.count, self._launcher(launch)
         if n == 0:
             return
-        launch = launch or (lambda k, dim, inputs: wp.launch(k, dim=dim, inputs=inputs, device=self.device))
-        words = max(wp.types.type_size_in_bytes(d) for d in self.fields.values()) // 4
-        if self._sort_keys is None or len(self._sort_keys) < 2 * n or len(self._sort_scratch) < n * words:
-            self._sort_keys = wp.zeros(2 * self.capacity, dtype=wp.int32, device=self.device)
-            self._sort_order = wp.zeros(2 * self.capacity, dtype=wp.int32, device=self.device)
-            self._sort_scratch = wp.zeros(self.capacity * words, dtype=wp.uint32, device=self.device)
-        keys, order = self._sort_keys, self._sort_order
+        keys, order = self._sort_buffers(n, wp.int32)
         cells = wp.vec3i(*cells)
         launch(cell_keys, n, [self.x, self.active, geometry, cells, keys, order])
-        end_bit = max(1, math.ceil(math.log2(cells[0] * cells[1] * cells[2] + 1)))
-        wp.utils.radix_sort_pairs(keys, order, n, end_bit=end_bit)
+        wp.utils.radix_sort_pairs(keys, order, n, end_bit=max(1, int(cells[0] * cells[1] * cells[2]).bit_length()))
+        self._permute(order, n, launch)
+        self.in_id_order = False
+
+    def sort_by_id(self, max_id: int, launch=None):
+        """Back to id order (ids below max_id): the order appends and compaction keep, so between
+        frames the arrays are laid out as if they had never been sorted."""
+        n, launch = self.count, self._launcher(launch)
+        if n:
+            keys, order = self._sort_buffers(n, wp.int64)
+            launch(id_keys, n, [self.ids, keys, order])
+            wp.utils.radix_sort_pairs(keys, order, n, end_bit=max(1, int(max_id).bit_length()))
+            self._permute(order, n, launch)
+        self.in_id_order = True
+
+    def _launcher(self, launch):
+        return launch or (lambda k, dim, inputs: wp.launch(k, dim=dim, inputs=inputs, device=self.device))
+
+    def _sort_buffers(self, n: int, key_dtype):
+        """Keys and values for the radix sort (it needs room for 2n), and the gather's scratch."""
+        words = max(wp.types.type_size_in_bytes(d) for d in self.fields.values()) // 4
+        if self._sort_order is None or len(self._sort_order) < 2 * n or len(self._sort_scratch) < n * words:
+            self._sort_keys = {}
+            self._sort_order = wp.zeros(2 * self.capacity, dtype=wp.int32, device=self.device)
+            self._sort_scratch = wp.zeros(self.capacity * words, dtype=wp.uint32, device=self.device)
+        if key_dtype not in self._sort_keys:
+            self._sort_keys[key_dtype] = wp.zeros(len(self._sort_order), dtype=key_dtype, device=self.device)
+        return self._sort_keys[key_dtype], self._sort_order
+
+    def _permute(self, order, n: int, launch):
+        """field[p] = field[order[p]] for every field, through the scratch buffer."""
         for name in self.fields:
             field = _words(getattr(self, name), n)
             scratch = wp.array(ptr=self._sort_scratch.ptr, dtype=wp.uint32, shape=field.shape, device=self.device)

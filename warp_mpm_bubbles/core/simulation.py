@@ -179,7 +179,8 @@ class Simulation:
     def step(self, dt: float):
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
-            if self.sort_every and (self.particles.in_id_order or self.stats.steps - self._sorted_at >= self.sort_every):
+            since = self.stats.steps - self._sorted_at
+            if self.sort_every and (self.particles.in_id_order or since >= self.sort_every):
                 self.sort_particles()
             self.particles_to_grid()
             self._run("after_p2g", dt)  # gas sums

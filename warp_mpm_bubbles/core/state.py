@@ -15,8 +15,6 @@ placeholders until the gas stage replaces them (the core kernels take them as ar
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import warp as wp
 

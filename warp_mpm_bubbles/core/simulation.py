@@ -37,7 +37,11 @@ from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, split_pai
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
-SORT_EVERY = 10  # steps between sorts of the particles by cell (benchmarks/transfers.py; 0: never)
+# Steps between sorts of the particles by cell (Simulation.sort_every; 10 pays at 64^3, see
+# benchmarks/transfers.py); 0: never. Off by default: a sort reorders the transfers' float sums,
+# and that rounding-level change tipped two chaotic bubble tests across their bounds (a rising
+# bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
+SORT_EVERY = 0
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 # Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
 TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")

@@ -10,7 +10,8 @@ subprocess, the variants alternating between rounds (so drifts in machine load h
   tree        the source tree on PYTHONPATH: this one, and --compare DIR (e.g. an unchanged copy)
   order       "seeded" (the seeder's cell-major order) or "shuffled" (a random permutation of the
               particles, as after a long splash has mixed them)
-  sort        the tree's sort interval (Simulation.sort_every): "default", or "off" (0)
+  sort        Simulation.sort_every: a number of steps (default 10), or "off" (0); a tree
+              without the sort runs its own step once per order
 
 Per variant: --warmup full steps, then --steps full steps timed by the stage timer (ms per step of
 p2g, grid, pressure, extend, g2p; the sort is charged to p2g), and --reps repetitions of each
@@ -116,8 +117,8 @@ def worker(args) -> int:
 
     with tempfile.TemporaryDirectory() as out_dir:
         sim = Simulation(block_scene(args.grid, out_dir), device=args.device)
-    if args.sort == "off" and hasattr(sim, "sort_every"):
-        sim.sort_every = 0
+    if hasattr(sim, "sort_every"):
+        sim.sort_every = 0 if args.sort == "off" else int(args.sort)
     if args.order == "shuffled":
         shuffle(sim)
     for _ in range(args.warmup):
@@ -189,14 +190,14 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--reps", type=int, default=10)
     ap.add_argument("--orders", default="seeded,shuffled", help="comma-separated: seeded, shuffled")
-    ap.add_argument("--sorts", default="default,off", help="comma-separated: default, off")
+    ap.add_argument("--sorts", default="10,off", help="comma-separated sort intervals (steps) or off (default 10,off)")
     ap.add_argument("--compare", default=None, help="another source tree (a directory holding warp_mpm_bubbles)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="CPU time (default) or wall time")
     ap.add_argument("--label", default=None)
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--order", default="seeded", help=argparse.SUPPRESS)
-    ap.add_argument("--sort", default="default", help=argparse.SUPPRESS)
+    ap.add_argument("--sort", default="10", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
         return worker(args)

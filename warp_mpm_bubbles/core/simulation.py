@@ -37,10 +37,15 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from .transfer_kernels import GAS_ADIABATIC, GAS_ISOTHERMAL, g2p_advect, p2g
+from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, split_pairs
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
+# Steps between sorts of the particles by cell (Simulation.sort_every; 10 pays at 64^3, see
+# benchmarks/transfers.py); 0: never. Off by default: a sort reorders the transfers' float sums,
+# and that rounding-level change tipped two chaotic bubble tests across their bounds (a rising
+# bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
+SORT_EVERY = 0
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
 # Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
 TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
@@ -93,6 +98,8 @@ class Simulation:
         self.time = 0.0
         self.frame = 0
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
+        self.sort_every = SORT_EVERY
+        self._sorted_at = 0  # the step of the last sort by cell
         self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64)}
         self._init_geometry()
         self.particles = ParticleState(self.device)
@@ -199,6 +206,7 @@ class Simulation:
     def step(self, dt: float):
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
+            self._sort_if_due()
             self.particles_to_grid()
             self.region.update(self.particles)  # one read: the box the grid stages cover
             self._run("after_p2g", dt)  # gas sums
@@ -240,6 +248,7 @@ class Simulation:
         f = self.fields
         self.region.whole_grid()  # its box is read on the host: not inside a graph
         self._run("begin_step", dt)
+        self._sort_if_due()  # moves the particle arrays in place: outside the graphs
         with self.timer("graph: p2g .. system"):
             self._replay("pre", dt, lambda: (self.particles_to_grid(), self._run("after_p2g", dt),
                                              self._grid_velocity_and_cells(dt), self._run("force", dt),
@@ -277,13 +286,28 @@ class Simulation:
         for arrays, state in zip(lists, after):
             arrays[:] = state
 
+    def _sort_if_due(self):
+        since = self.stats.steps - self._sorted_at
+        if self.sort_every and (self.particles.in_id_order or since >= self.sort_every):
+            self.sort_particles()
+
+    def sort_particles(self):
+        """Order the particles by cell (ParticleState.sort_by_cell): the transfers then read and add
+        to the grid in memory order. Read-outs (particles_numpy) stay in id order, and advance_to
+        returns the arrays in id order (a particle keeps its index from one frame to the next)."""
+        self.particles.sort_by_cell(self.geometry, self.grid.cells, self.launch)
+        self._sorted_at = self.stats.steps
+
     def particles_to_grid(self):
         """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
         f, p = self.fields, self.particles
-        for arr in (*f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite):
+        for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
-        self.launch(p2g, p.count,
-                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.mom, *f.face_mass, f.liq_mass, f.liq_volume, f.cell_count, f.nonfinite])
+        self.launch(P2G[self.grid.dim], p.count,
+                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite])
+        for a in range(3):
+            self.launch(split_pairs, f.mom[a].shape, [f.face_pairs[a], f.mom[a], f.face_mass[a]])
+        self.launch(split_pairs, self.grid.cells, [f.cell_pairs, f.liq_mass, f.liq_volume])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
@@ -350,7 +374,7 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        self.launch(g2p_advect, p.count,
+        self.launch(G2P[self.grid.dim], p.count,
                     [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells, f.max_speed])
 
     # ---------------------------------------------------------------------------- time steps
@@ -387,6 +411,8 @@ class Simulation:
             self.time = t_end if n == 1 else self.time + dt
             if on_step:
                 on_step(dt, t_end - self.time)
+        if not self.particles.in_id_order:
+            self.particles.sort_by_id(int(self.host_state["next_id"][0]), self.launch)
 
     @property
     def frame_dt(self) -> float:
@@ -415,7 +441,10 @@ class Simulation:
         """
         p = self.particles
         view = {name: p.numpy(name) for name in ("x", "v", "material", "J", "mass", "vol0", "phase", "ids")}
-        keep = slice(None) if include_retired else p.numpy("active") == 1
+        keep = np.arange(p.count) if include_retired else np.flatnonzero(p.numpy("active") == 1)
+        ids = view["ids"][keep]
+        if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # sorted by cell: back to id order
+            keep = keep[np.argsort(ids, kind="stable")]
         return {
             "positions": view["x"][keep].copy(),
             "velocities": view["v"][keep].copy(),

@@ -1,8 +1,9 @@
 """Particle <-> grid transfers: APIC on a MAC grid with quadratic B-splines (Jiang et al. 2015).
 
-Each velocity component lives on its own staggered face grid, so every transfer is done once per
-component with that component's offset. The particle's affine matrix ``C`` stores, in row ``a``,
-the gradient of velocity component ``a``. In 2D the stencil collapses to one node in z.
+Each velocity component lives on its own staggered face grid with its own offset. The particle's
+affine matrix ``C`` stores, in row ``a``, the gradient of velocity component ``a``. In 2D the
+stencil collapses to one node in z. The core transfers (P2G, G2P: one kernel per dimension) visit
+every grid in one pass over the nodes; the per-component functions serve the effects' kernels.
 """
 
 import warp as wp
@@ -72,99 +73,6 @@ def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
 @wp.func
 def grid_coord(x: wp.vec3, origin: wp.vec3, inv_dx: float, offset: wp.vec3):
     return (x - origin) * inv_dx - offset
-
-
-@wp.func
-def splat_component(
-    mom: wp.array3d(dtype=float),
-    mass: wp.array3d(dtype=float),
-    X: wp.vec3,
-    dim: int,
-    dx: float,
-    m: float,
-    vel: float,
-    grad: wp.vec3,
-):
-    """Scatter one particle's mass and APIC momentum of one component onto its face grid."""
-    s = make_stencil(X, dim)
-    for i in range(3):
-        for j in range(3):
-            for k in range(s.nk):
-                w = s.wx[i] * s.wy[j] * s.wz[k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
-                wp.atomic_add(mom, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m * (vel + wp.dot(grad, dpos)))
-                wp.atomic_add(mass, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m)
-
-
-@wp.func
-def splat_cell(
-    cell_mass: wp.array3d(dtype=float),
-    cell_volume: wp.array3d(dtype=float),
-    X: wp.vec3,
-    dim: int,
-    m: float,
-    vol: float,
-):
-    """Scatter mass and rest volume to cell centres: density and volume fraction per cell."""
-    s = make_stencil(X, dim)
-    for i in range(3):
-        for j in range(3):
-            for k in range(s.nk):
-                w = s.wx[i] * s.wy[j] * s.wz[k]
-                wp.atomic_add(cell_mass, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * m)
-                wp.atomic_add(cell_volume, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * vol)
-
-
-@wp.kernel
-def p2g(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    C: wp.array(dtype=wp.mat33),
-    pmass: wp.array(dtype=float),
-    pvol0: wp.array(dtype=float),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    geo: GridGeometry,
-    mom_u: wp.array3d(dtype=float),
-    mom_v: wp.array3d(dtype=float),
-    mom_w: wp.array3d(dtype=float),
-    mass_u: wp.array3d(dtype=float),
-    mass_v: wp.array3d(dtype=float),
-    mass_w: wp.array3d(dtype=float),
-    cell_mass: wp.array3d(dtype=float),
-    cell_volume: wp.array3d(dtype=float),
-    cell_count: wp.array3d(dtype=wp.int32),
-    nonfinite: wp.array(dtype=wp.int32),
-):
-    """Momentum of every active grid-resolved particle; cell mass and rest volume of the liquid;
-    particle counts. Foam and sub-grid bubbles (phase > PHASE_GAS) couple through their effects.
-
-    A particle with a non-finite position or velocity is skipped and counted in nonfinite[0]: the
-    step then stops with a message instead of writing outside the grid.
-    """
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
-    p = wp.tid()
-    if active[p] == 0 or phase[p] > PHASE_GAS:
-        return
-    vp = v[p]
-    if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
-        wp.atomic_add(nonfinite, 0, 1)
-        return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    inv_dx = 1.0 / dx
-    m = pmass[p]
-    Cp = C[p]
-    splat_component(mom_u, mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx, m, vp[0], Cp[0])
-    splat_component(mom_v, mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx, m, vp[1], Cp[1])
-    if dim == 3:
-        splat_component(mom_w, mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx, m, vp[2], Cp[2])
-    if phase[p] == PHASE_LIQUID:
-        splat_cell(cell_mass, cell_volume, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, m, pvol0[p])
-    c = (xp - origin) * inv_dx
-    wp.atomic_add(cell_count, int(wp.floor(c[0])), int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
 
 
 @wp.func
@@ -360,48 +268,268 @@ def wall_stopped(moved: wp.vec3, kept: wp.vec3, vp: wp.vec3, dim: int):
     return out
 
 
-@wp.kernel
-def g2p_advect(
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    gas_u: wp.array3d(dtype=float),
-    gas_v: wp.array3d(dtype=float),
-    gas_w: wp.array3d(dtype=float),
-    geo: GridGeometry,
-    dt: float,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    C: wp.array(dtype=wp.mat33),
-    J: wp.array(dtype=float),
-    active: wp.array(dtype=wp.int32),
-    phase: wp.array(dtype=wp.int32),
-    gas_J_from_cells: int,
-    max_speed: wp.array(dtype=float),
-):
-    """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
-    (grid-resolved phases only: the effects move foam and sub-grid bubbles)."""
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
-    p = wp.tid()
-    if active[p] == 0 or phase[p] > PHASE_GAS:
-        return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    vp = wp.vec3(0.0)
-    Cp = wp.mat33(0.0)
-    if phase[p] == PHASE_GAS:  # the gas's own field (the liquid's when phase velocities are shared)
-        vp, Cp = gather_velocity_and_affine(gas_u, gas_v, gas_w, xp, origin, dx, dim)
-    else:
-        vp, Cp = gather_velocity_and_affine(vel_u, vel_v, vel_w, xp, origin, dx, dim)
-    if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
-        J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
+# ------------------------------------------------------------------------- fused transfers
+# One kernel per direction and dimension (the node loops' bounds fixed at compile time, so they
+# unroll). The stencils of the three face grids and the cell grid share their per-axis weights
+# (along each axis, nodes sit on faces, offset 0, or at centres, offset 0.5).
+# - p2g visits every grid in one pass over the nodes, with make_stencil's arithmetic per node, so
+#   its sums are bit for bit those of one pass per component. Its cost is the number of
+#   read-modify-writes (about the same for a vec2 as for a float), so it adds (momentum, mass)
+#   pairs, split afterwards by split_pairs: 135 per particle instead of 270. Measured with
+#   benchmarks/transfers.py: 0.7x for the fused pass, then 0.76x for the pairs.
+# - g2p applies the weights one axis at a time, two multiply-adds per node (it was compute-bound):
+#   0.75x of the fused loop, equal to it within float32 rounding.
 
-    # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
-    moved = xp + dt * vp
-    xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    x[p] = xn
-    v[p] = wall_stopped(moved, xn, vp, dim)
-    C[p] = Cp
-    wp.atomic_max(max_speed, 0, wp.length(v[p]))
+
+@wp.func
+def axis_stencil(c: float, offset: float):
+    """Base node, fraction and weights along one axis at cell coordinate c, nodes at `offset`."""
+    X = c - offset
+    base = int(wp.floor(X - 0.5))
+    frac = X - float(base)
+    return base, frac, bspline_weights(frac)
+
+
+@wp.struct
+class MacStencil:
+    """The stencils of the u, v, w face grids and the cell grid of one particle (see mac_stencil)."""
+
+    face_base: wp.vec3i  # per axis: nodes on faces, the grid of that axis' own component
+    face_frac: wp.vec3
+    face_w: wp.mat33  # row a: the weights along axis a
+    centre_base: wp.vec3i  # per axis: nodes at cell centres (the cell grid, the other components)
+    centre_frac: wp.vec3
+    centre_w: wp.mat33
+
+
+@wp.func
+def mac_stencil(xp: wp.vec3, origin: wp.vec3, inv_dx: float, dim: int):
+    c = (xp - origin) * inv_dx
+    s = MacStencil()
+    for a in range(3):
+        b, f, w = axis_stencil(c[a], 0.0)
+        s.face_base[a] = b
+        s.face_frac[a] = f
+        s.face_w[a] = w
+        b, f, w = axis_stencil(c[a], 0.5)
+        s.centre_base[a] = b
+        s.centre_frac[a] = f
+        s.centre_w[a] = w
+    if dim == 2:  # one node along z, where the particle is
+        s.face_base[2] = 0
+        s.centre_base[2] = 0
+        s.face_frac[2] = 0.0
+        s.centre_frac[2] = 0.0
+        s.face_w[2] = wp.vec3(1.0, 0.0, 0.0)
+        s.centre_w[2] = wp.vec3(1.0, 0.0, 0.0)
+    return s
+
+
+@wp.func
+def component_stencil(s: MacStencil, a: int):
+    """The stencil of face component a (a = 3: the cell grid): faces along a, centres elsewhere."""
+    out = Stencil()
+    out.base = s.centre_base
+    out.frac = s.centre_frac
+    out.wx = s.centre_w[0]
+    out.wy = s.centre_w[1]
+    out.wz = s.centre_w[2]
+    if a < 3:
+        out.base[a] = s.face_base[a]
+        out.frac[a] = s.face_frac[a]
+    if a == 0:
+        out.wx = s.face_w[0]
+    if a == 1:
+        out.wy = s.face_w[1]
+    if a == 2:
+        out.wz = s.face_w[2]
+    return out
+
+
+@wp.func
+def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: int, dx: float, m: float, vel: float,
+               grad: wp.vec3):
+    """Node (i, j, k)'s share of one particle's APIC momentum and mass of one component, added as a
+    pair: one read-modify-write instead of two."""
+    w = s.wx[i] * s.wy[j] * s.wz[k]
+    dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
+    wm = w * m
+    wp.atomic_add(face, s.base[0] + i, s.base[1] + j, s.base[2] + k, wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm))
+
+
+@wp.kernel(enable_backward=False)
+def split_pairs(pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float)):
+    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read."""
+    i, j, k = wp.tid()
+    q = pairs[i, j, k]
+    first[i, j, k] = q[0]
+    second[i, j, k] = q[1]
+
+
+def _p2g_kernel(dim: int):
+    NK = 3 if dim == 3 else 1
+
+    @wp.kernel(enable_backward=False, name="p2g")
+    def p2g_fused(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        C: wp.array(dtype=wp.mat33),
+        pmass: wp.array(dtype=float),
+        pvol0: wp.array(dtype=float),
+        phase: wp.array(dtype=wp.int32),
+        active: wp.array(dtype=wp.int32),
+        geo: GridGeometry,
+        face_u: wp.array3d(dtype=wp.vec2),
+        face_v: wp.array3d(dtype=wp.vec2),
+        face_w: wp.array3d(dtype=wp.vec2),
+        cell_mv: wp.array3d(dtype=wp.vec2),
+        cell_count: wp.array3d(dtype=wp.int32),
+        nonfinite: wp.array(dtype=wp.int32),
+    ):
+        """Momentum of every active grid-resolved particle; cell mass and rest volume of the liquid;
+        particle counts. Foam and sub-grid bubbles (phase > PHASE_GAS) couple through their effects.
+
+        A particle with a non-finite position or velocity is skipped and counted in nonfinite[0]:
+        the step then stops with a message instead of writing outside the grid.
+        """
+        origin = geo.origin
+        dx = geo.dx
+        p = wp.tid()
+        if active[p] == 0 or phase[p] > PHASE_GAS:
+            return
+        vp = v[p]
+        if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
+            wp.atomic_add(nonfinite, 0, 1)
+            return
+        xp = clamp_to_domain(x[p], geo.domain_hi, dx, wp.static(dim))
+        inv_dx = 1.0 / dx
+        m = pmass[p]
+        vol = pvol0[p]
+        Cp = C[p]
+        liquid = phase[p] == PHASE_LIQUID
+        s = mac_stencil(xp, origin, inv_dx, wp.static(dim))
+        su = component_stencil(s, 0)
+        sv = component_stencil(s, 1)
+        sw = component_stencil(s, 2)
+        sc = component_stencil(s, 3)
+        for i in range(3):
+            for j in range(3):
+                for k in range(wp.static(NK)):
+                    splat_pair(face_u, su, i, j, k, dx, m, vp[0], Cp[0])
+                    splat_pair(face_v, sv, i, j, k, dx, m, vp[1], Cp[1])
+                    if wp.static(dim == 3):
+                        splat_pair(face_w, sw, i, j, k, dx, m, vp[2], Cp[2])
+                    if liquid:
+                        w = sc.wx[i] * sc.wy[j] * sc.wz[k]
+                        wp.atomic_add(cell_mv, sc.base[0] + i, sc.base[1] + j, sc.base[2] + k, wp.vec2(w * m, w * vol))
+        c = (xp - origin) * inv_dx
+        wp.atomic_add(cell_count, int(wp.floor(c[0])), int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
+
+    return p2g_fused
+
+
+def _gather_func(dim: int):
+    NK = 3 if dim == 3 else 1
+
+    @wp.func
+    def gather_separable(vel: wp.array3d(dtype=float), s: Stencil, dx: float):
+        """One component's value and APIC gradient (as gather_component), the weights applied one
+        axis at a time: two multiply-adds per node instead of eighteen operations."""
+        ijk = wp.vec3(0.0, 1.0, 2.0)
+        dpx = (ijk - wp.vec3(s.frac[0])) * dx
+        dpy = (ijk - wp.vec3(s.frac[1])) * dx
+        dpz = (ijk - wp.vec3(s.frac[2])) * dx
+        value = float(0.0)
+        gx = float(0.0)
+        gy = float(0.0)
+        gz = float(0.0)
+        for i in range(3):
+            ty = float(0.0)
+            tyy = float(0.0)
+            tyz = float(0.0)
+            for j in range(3):
+                t = float(0.0)
+                tz = float(0.0)
+                for k in range(wp.static(NK)):
+                    g = vel[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+                    t += s.wz[k] * g
+                    tz += s.wz[k] * dpz[k] * g
+                ty += s.wy[j] * t
+                tyy += s.wy[j] * dpy[j] * t
+                tyz += s.wy[j] * tz
+            value += s.wx[i] * ty
+            gx += s.wx[i] * dpx[i] * ty
+            gy += s.wx[i] * tyy
+            gz += s.wx[i] * tyz
+        d = 4.0 / (dx * dx)  # B-spline: D^-1
+        return wp.vec4(value, d * gx, d * gy, d * gz)
+
+    @wp.func
+    def gather_mac(vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
+                   s: MacStencil, dx: float):
+        """gather_velocity_and_affine with the shared stencils."""
+        gu = gather_separable(vel_u, component_stencil(s, 0), dx)
+        gv = gather_separable(vel_v, component_stencil(s, 1), dx)
+        gw = wp.vec4(0.0)
+        if wp.static(dim == 3):
+            gw = gather_separable(vel_w, component_stencil(s, 2), dx)
+        C = wp.matrix_from_rows(wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]),
+                                wp.vec3(gw[1], gw[2], gw[3]))
+        return wp.vec3(gu[0], gv[0], gw[0]), C
+
+    return gather_mac
+
+
+def _g2p_kernel(dim: int):
+    gather_mac = _gather_func(dim)
+
+    @wp.kernel(enable_backward=False, name="g2p_advect")
+    def g2p_fused(
+        vel_u: wp.array3d(dtype=float),
+        vel_v: wp.array3d(dtype=float),
+        vel_w: wp.array3d(dtype=float),
+        gas_u: wp.array3d(dtype=float),
+        gas_v: wp.array3d(dtype=float),
+        gas_w: wp.array3d(dtype=float),
+        geo: GridGeometry,
+        dt: float,
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        C: wp.array(dtype=wp.mat33),
+        J: wp.array(dtype=float),
+        active: wp.array(dtype=wp.int32),
+        phase: wp.array(dtype=wp.int32),
+        gas_J_from_cells: int,
+        max_speed: wp.array(dtype=float),
+    ):
+        """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
+        (grid-resolved phases only: the effects move foam and sub-grid bubbles)."""
+        dx = geo.dx
+        domain_hi = geo.domain_hi
+        p = wp.tid()
+        if active[p] == 0 or phase[p] > PHASE_GAS:
+            return
+        xp = clamp_to_domain(x[p], domain_hi, dx, wp.static(dim))
+        s = mac_stencil(xp, geo.origin, 1.0 / dx, wp.static(dim))
+        vp = wp.vec3(0.0)
+        Cp = wp.mat33(0.0)
+        if phase[p] == PHASE_GAS:  # the gas's own field (the liquid's when phase velocities are shared)
+            vp, Cp = gather_mac(gas_u, gas_v, gas_w, s, dx)
+        else:
+            vp, Cp = gather_mac(vel_u, vel_v, vel_w, s, dx)
+        if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
+            J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
+        # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
+        moved = xp + dt * vp
+        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))
+        x[p] = xn
+        vn = wall_stopped(moved, xn, vp, wp.static(dim))
+        v[p] = vn
+        C[p] = Cp
+        wp.atomic_max(max_speed, 0, wp.length(vn))
+
+    return g2p_fused
+
+
+P2G = {2: _p2g_kernel(2), 3: _p2g_kernel(3)}
+G2P = {2: _g2p_kernel(2), 3: _g2p_kernel(3)}

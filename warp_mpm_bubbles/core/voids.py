@@ -14,14 +14,21 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    cells) and labels the face-connected EMPTY regions (grid.connected_labels). A region is open air
    if it reaches an open wall (an EMPTY ghost cell) or the domain's top layer (without gravity: any
    side), the rule diagnostics.void_cells counts by; every other EMPTY cell is a void.
-3. makes each void a liquid cell (FLUID, PHASE_LIQUID). Its rest-volume fraction is about 0, so the
-   volume correction asks it to contract by its full deficit and the pressure closes it from the
-   water around it (grid_kernels.pressure_diagonal_and_rhs counts an under-filled cell with no
-   EMPTY neighbour as enclosed).
-4. in a scene with gas, a void region of POCKET_CELLS cells or more that touches no gas is air a
-   splash closed over: it is seeded with gas particles at the ambient pressure (a resolved bubble
-   that then rises and is compressed by the water around it), and their mass is booked as taken from
-   the atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact).
+3. makes each void of a region under POCKET_CELLS cells a liquid cell (FLUID, PHASE_LIQUID). Its
+   rest-volume fraction is about 0, so the volume correction asks it to contract by its full deficit
+   and the pressure closes it from the phases around it (grid_kernels.pressure_diagonal_and_rhs
+   counts a near-empty cell with no gas and no EMPTY neighbour as enclosed).
+4. leaves a larger region EMPTY this step (closing a big region by a deficit is violent: the pour's
+   glass once sealed 379 cells of air under a sheet, and the deficit threw the water at 400 m/s);
+   in a scene with gas it is air a splash closed over, and is seeded with gas particles at the
+   ambient pressure, a resolved bubble from the next step on, compressed by the water around it and
+   lifted by buoyancy. Their mass is booked as taken from the atmosphere
+   (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact).
+
+Every step, on the device (`clear_holes`): a fluid cell with no particle and no EMPTY neighbour (a
+gap a rising bubble leaves, a void made liquid above) holds nothing, whatever its neighbours'
+B-splines splat into it; it becomes a liquid cell with a trace of liquid and no gas, so its full
+deficit counts.
 """
 
 from __future__ import annotations
@@ -34,7 +41,7 @@ from .grid_kernels import cell_type_at
 
 wp.set_module_options({"enable_backward": False})
 
-POCKET_CELLS = 4  # a void of this many cells or more, touching no gas, is trapped air (scenes with gas)
+POCKET_CELLS = 4  # a void region this large is air, not a gap: trapped air with gas, else left EMPTY
 VOID_FILL = wp.constant(1.0e-6)  # rest-volume fraction written into a void with none: keeps its faces' density defined
 
 
@@ -166,6 +173,8 @@ class VoidPass:
         if self.gas_material is not None:  # checkpointed with the rest of host_state
             sim.host_state.setdefault("gas_mass_trapped", np.zeros(1))
         self.last_voids = 0
+        self.by_frame: dict[int, int] = {}  # most void cells at one step, per frame that had any (run summary)
+        self.pockets = 0  # void regions seeded as trapped air
 
     def apply(self, dt: float):
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
@@ -184,43 +193,26 @@ class VoidPass:
                                           f.gas_pv, f.gas_kv])
 
     def _fill_voids(self):
+        """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones stay
+        EMPTY this step and, in a scene with gas, are seeded with gas for the next (trapped air)."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
         types = f.types.numpy().copy()  # the justified host read (only on steps with covered EMPTY cells)
         cells, labels = void_mask(types, g.ghost, sim.up)
         self.last_voids = len(cells)
         if len(cells) == 0:
             return
-        mask = np.zeros(g.cells, np.int32)
-        mask[tuple(cells.T)] = 1
-        self.mask.assign(mask)
-        sim.launch(fill_voids, g.cells, [self.mask, self.rho_liquid, g.dx**3, f.types, f.phase_cells,
-                                         f.liq_mass, f.liq_volume])
-        if self.gas_material is not None:
-            self._trap_air(cells, labels, types)
-
-    def _trap_air(self, cells, labels, types):
-        """Seed each void region of POCKET_CELLS or more cells that touches no gas with gas at the
-        ambient pressure; book its mass as taken from the atmosphere."""
-        sim, g = self.sim, self.sim.grid
-        ids, sizes = np.unique(labels, return_counts=True)
-        big = ids[sizes >= POCKET_CELLS]
-        if len(big) == 0:
-            return
-        phase = sim.fields.phase_cells.numpy()
-        gas = (types == FLUID) & (phase == PHASE_GAS)
-        gas_count = sim.fields.gas_count.numpy()
-        if gas_count.shape == gas.shape:
-            gas |= gas_count > 0
-        touched = np.zeros(len(cells), bool)
-        for a in range(g.dim):
-            for s in (-1, 1):
-                n = cells.copy()
-                n[:, a] += s
-                n = np.clip(n, 0, np.array(g.cells) - 1)
-                touched |= gas[tuple(n.T)]
-        pockets = np.isin(labels, big) & ~np.isin(labels, np.unique(labels[touched]))
-        if pockets.any():
-            self._seed_gas(cells[pockets])
+        self.by_frame[sim.frame] = max(self.by_frame.get(sim.frame, 0), len(cells))
+        ids, inverse, sizes = np.unique(labels, return_inverse=True, return_counts=True)
+        large = sizes[inverse] >= POCKET_CELLS
+        if (~large).any():
+            mask = np.zeros(g.cells, np.int32)
+            mask[tuple(cells[~large].T)] = 1
+            self.mask.assign(mask)
+            sim.launch(fill_voids, g.cells, [self.mask, self.rho_liquid, g.dx**3, f.types, f.phase_cells,
+                                             f.liq_mass, f.liq_volume])
+        if large.any() and self.gas_material is not None:
+            self.pockets += len(np.unique(labels[large]))
+            self._seed_gas(cells[large])
 
     def _seed_gas(self, cells):
         sim, g = self.sim, self.sim.grid

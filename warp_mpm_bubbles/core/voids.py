@@ -25,10 +25,11 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    lifted by buoyancy. Their mass is booked as taken from the atmosphere
    (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact).
 
-Every step, on the device (`clear_holes`): a fluid cell with no particle and no EMPTY neighbour (a
-gap a rising bubble leaves, a void made liquid above) holds nothing, whatever its neighbours'
-B-splines splat into it; it becomes a liquid cell with a trace of liquid and no gas, so its full
-deficit counts.
+Every step, on the device (`clear_holes`), in scenes without compressible gas: a fluid cell with no
+particle and no EMPTY neighbour (a gap a rising bubble leaves, a void made liquid above) holds
+nothing, whatever its neighbours' B-splines splat into it; it becomes a liquid cell with a trace of
+liquid and no gas, so its full deficit counts. With compressible gas the gas expands into such gaps
+itself, and closing them by the deficit broke a rising air bubble up (see VoidPass.__init__).
 """
 
 from __future__ import annotations

@@ -14,16 +14,17 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    cells) and labels the face-connected EMPTY regions (grid.connected_labels). A region is open air
    if it reaches an open wall (an EMPTY ghost cell) or the domain's top layer (without gravity: any
    side), the rule diagnostics.void_cells counts by; every other EMPTY cell is a void.
-3. makes each void of a region under POCKET_CELLS cells a liquid cell (FLUID, PHASE_LIQUID). Its
-   rest-volume fraction is about 0, so the volume correction asks it to contract by its full deficit
-   and the pressure closes it from the phases around it (grid_kernels.pressure_diagonal_and_rhs
-   counts a near-empty cell with no gas and no EMPTY neighbour as enclosed).
-4. leaves a larger region EMPTY this step (closing a big region by a deficit is violent: the pour's
-   glass once sealed 379 cells of air under a sheet, and the deficit threw the water at 400 m/s);
-   in a scene with gas it is air a splash closed over, and is seeded with gas particles at the
-   ambient pressure, a resolved bubble from the next step on, compressed by the water around it and
-   lifted by buoyancy. Their mass is booked as taken from the atmosphere
-   (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact).
+3. makes each void of a region under POCKET_CELLS cells a fluid cell of the phase its volumes say
+   (liquid as a rule). Its rest-volume fraction is about 0, so the volume correction asks it to
+   contract by its full deficit and the pressure closes it (grid_kernels.pressure_diagonal_and_rhs
+   counts a near-empty cell with no gas and no EMPTY neighbour as enclosed). With compressible gas,
+   a void beside the gas stays EMPTY, as before (filled, a merging film was thrown at 3.4 m/s).
+4. leaves a larger region EMPTY this step (closing it by a deficit is violent: the pour's glass
+   once sealed 379 cells of air under a sheet, and the water was thrown at 400 m/s). In a scene with
+   gas, one that touches no gas is air a splash closed over: it is seeded with gas at the ambient
+   pressure, a resolved bubble from the next step on; the mass is booked as taken from the
+   atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact). One
+   beside gas is the space the gas just left (a burst's vented cavity), not trapped air.
 
 Every step, on the device (`clear_holes`), in scenes without compressible gas: a fluid cell with no
 particle and no EMPTY neighbour (a gap a rising bubble leaves, a void made liquid above) holds

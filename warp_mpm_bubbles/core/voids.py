@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, connected_labels
+from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
 from .grid_kernels import cell_type_at
 
 wp.set_module_options({"enable_backward": False})
@@ -241,13 +241,18 @@ class VoidPass:
             self._seed_gas(cells[pockets])
 
     def _touching_gas(self, cells, labels, types):
-        """Void cells whose region has a gas cell or a gas particle beside it: the space a bubble's
-        gas just left (vented at a burst, or moved on) is not air a splash trapped, and seeding it
-        made gas that vented again at 2 m/s."""
+        """Void cells whose region has a gas cell, a gas particle or a sub-grid bubble in it or beside
+        it: the space a bubble's gas just left (vented at a burst, shrunk to a sub-grid bubble) is not
+        air a splash trapped, and seeding it made gas that vented again at 2 m/s."""
         sim, g = self.sim, self.sim.grid
         gas = (types == FLUID) & (sim.fields.phase_cells.numpy() == PHASE_GAS)
         gas |= sim.fields.gas_count.numpy() > 0
-        touched = np.zeros(len(cells), bool)
+        p = sim.particles  # a sub-grid bubble in it: the space a resolved bubble shrunk out of
+        sub = (p.numpy("phase") == PHASE_SUBGRID) & (p.numpy("active") == 1)
+        if sub.any():
+            idx = np.floor((p.numpy("x")[sub] - np.asarray(g.origin)) / g.dx).astype(int)
+            gas[tuple(np.clip(idx, 0, np.array(g.cells) - 1).T)] = True
+        touched = gas[tuple(cells.T)]
         for a in range(g.dim):
             for s in (-1, 1):
                 n = cells.copy()

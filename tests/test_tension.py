@@ -124,7 +124,8 @@ def test_gas_films_retract_into_the_bubble_beside_them():
         xs = wp.array(x, dtype=wp.vec3, device="cpu")
         wp.launch(retract_gas_films, 3, device="cpu", inputs=[
             wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
-            speed, geo, dt, xs,
+            speed, geo, dt, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
+            wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), xs,
             wp.array(particle_phase, device="cpu"), wp.ones(3, dtype=wp.int32, device="cpu")])
         moved = xs.numpy() - x
         # the pull points at the gas-weighted centroid of the gas cells (3, 3..5): straight to -x

@@ -421,6 +421,12 @@ def pressure_diagonal_and_rhs(
     sides = neighbour_kinds(types, phase, wp.vec3i(i, j, k), dim, two_phase)
     pinned = sides[0]
     enclosed = sides[1]
+    # A near-empty cell with no gas and no EMPTY neighbour is a hole inside the material
+    # (core/voids.py): its deficit counts whatever its neighbours are, so the correction closes it.
+    c = wp.vec3i(i, j, k)
+    if pinned == 0 and fill_fraction(liq_volume, gas_volume, two_phase, c, inv_dx2 / dx) <= HOLE_FRACTION:
+        if two_phase == 0 or gas_volume[i, j, k] == 0.0:
+            enclosed = 1
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
@@ -434,11 +440,15 @@ def pressure_diagonal_and_rhs(
         b += extra * gas_pv[i, j, k] / vg
         if extra > 0.0:
             pinned = 1
-    if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID:
+    if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
+        held = liq_volume[i, j, k]
         gas_here = float(0.0)
         if two_phase != 0:
             gas_here = gas_volume[i, j, k]
-        excess = volume_excess(liq_volume[i, j, k], gas_here, enclosed, inv_dx2, dx)
+        if two_phase != 0 and phase[i, j, k] == PHASE_GAS:  # sharp, incompressible gas: its own over-fill
+            held = gas_here  # (retracted films pile it into the bubble) spreads too; its J is fixed anyway
+            gas_here = 0.0
+        excess = volume_excess(held, gas_here, enclosed, inv_dx2, dx)
         target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take

@@ -38,6 +38,7 @@ from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
 from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, split_pairs
+from .voids import VoidPass
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
@@ -108,6 +109,7 @@ class Simulation:
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
         self._capturing = False
+        self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
@@ -318,6 +320,7 @@ class Simulation:
                     [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
                      wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, r.lo])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
+        self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
         for a in g.axes:
             self.launch(gk.zero_solid_faces, r.faces(a), [f.types, a, f.vel[a], r.lo])
             self.launch(gk.face_inverse_density, r.faces(a),
@@ -468,8 +471,9 @@ class Simulation:
                 for key, code in (("inside", PHASE_GAS), ("subgrid", PHASE_SUBGRID), ("foam", PHASE_FOAM))}
         vented = float(self.fields.vented_mass.numpy()[0])
         rounding = float(self.host_state.get("gas_mass_rounding", np.zeros(1))[0])
-        return {**held, "vented": vented, "rounding": rounding,
-                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + rounding,
+        trapped = float(self.host_state.get("gas_mass_trapped", np.zeros(1))[0])  # air a splash closed over
+        return {**held, "vented": vented, "rounding": rounding, "trapped": trapped,
+                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + rounding - trapped,
                 "volume": float((p.numpy("vol0") * p.numpy("J"))[(phase == PHASE_GAS) & active].sum())}
 
     def pressure_numpy(self) -> np.ndarray:

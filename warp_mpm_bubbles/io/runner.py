@@ -168,6 +168,18 @@ def _surface(sim: Simulation, builder):
         return liquid_surface(builder, sim.particles_numpy())
 
 
+def _voids_line(sim: Simulation) -> str:
+    """Particle-free regions closed off from the open air that the step made liquid (core/voids.py):
+    the most at one step in any frame, and how many frames had some (no extra device read)."""
+    v = sim.voids
+    if not v.by_frame:
+        return "  voids: none (no particle-free cell inside the liquid read as free surface)"
+    frame, worst = max(v.by_frame.items(), key=lambda kv: (kv[1], -kv[0]))
+    trapped = f", {v.pockets} trapped air pockets became bubbles" if v.pockets else ""
+    return (f"  voids: {len(v.by_frame)} frames had cells closed off inside the liquid (at most {worst} at one "
+            f"step, frame {frame}), filled as liquid{trapped}")
+
+
 def summary(result: RunResult) -> str:
     """Seconds per stage, CG effort, particles and steps: what the run cost and where."""
     sim = result.simulation
@@ -194,6 +206,7 @@ def summary(result: RunResult) -> str:
             ("foam", "in foam", "foam"), ("subgrid", "in sub-grid bubbles", "subgrid_bubbles")) if sim.stage(on))
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
+    lines.append(_voids_line(sim))
     if "surface" in timer.seconds:  # built once per frame, not per step
         lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")

@@ -1,0 +1,224 @@
+"""No voids (issue #12): a particle-free cell inside the liquid is not a free surface (core/voids.py),
+gas films retract without leaving holes (physics/tension.py), and air a splash closes over becomes a
+resolved bubble. Small 2D grids; docs/design.md#voids has the before/after measurements."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles.core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.diagnostics import void_cells
+
+wp.config.quiet = True
+L = 0.02  # tank width, m
+
+
+def filled_tank(cells, out):
+    """Hysing et al. (2009) case 1 scaled to a 2 x 4 cm closed tank, completely filled: Re 35, Eo 10,
+    density and viscosity ratios 10, incompressible gas; no-slip top and bottom, free-slip sides.
+    Defaults otherwise (sharp interface, the liquid's own field, films retract)."""
+    return Scene(
+        domain=Domain(size=(L, 2 * L), cell_size=L / cells,
+                      walls={"x_min": "free_slip", "x_max": "free_slip", "y_min": "no_slip", "y_max": "no_slip"}),
+        materials={"water": Material("water", density=1000.0, viscosity=0.0895, surface_tension=0.0981),
+                   "air": Material("air", kind="gas", density=100.0, viscosity=0.00895, eos="incompressible")},
+        shapes=[Box("water", min=(0.0, 0.0), max=(L, 2 * L)), Sphere("air", center=(L / 2, L / 2), radius=L / 4)],
+        output=Output(path=str(out / "tank.usdc")), name="filled_tank")
+
+
+def holes(sim):
+    """Particle-free cells (liquid and gas particles where they are now) that are not open air."""
+    p = sim.particles_numpy()
+    keep = p["phase"] <= PHASE_GAS
+    idx = np.floor((p["positions"][keep] - np.asarray(sim.grid.origin)) / sim.grid.dx).astype(int)
+    count = np.zeros(sim.grid.cells, int)
+    np.add.at(count, tuple(idx.T), 1)
+    types = sim.fields.types.numpy().copy()
+    types[(count == 0) & (types == FLUID)] = EMPTY
+    return void_cells(types, sim.grid.ghost, sim.up)
+
+
+def rise(sim, t_end, with_pass=True):
+    """Step to t_end; per step the voids (diagnostics), the interior EMPTY cells, and the holes just
+    before and just after the films retract."""
+    if not with_pass:
+        sim.voids.apply = lambda dt: None
+    stage = sim.stage("surface_tension")
+    retract = stage.after_g2p
+    film = []
+
+    def measured(s, dt):
+        before = holes(s)
+        retract(s, dt)
+        film.append((before, holes(s)))
+
+    stage.after_g2p = measured
+    interior = sim.grid.interior_slice()
+    voids, empty = [], []
+    while sim.time < t_end - 1e-12:
+        dt = min(sim.stable_dt(), t_end - sim.time)
+        sim.step(dt)
+        sim.time += dt
+        types = sim.fields.types.numpy()
+        voids.append(void_cells(types, sim.grid.ghost, sim.up))
+        empty.append(int((types[interior] == EMPTY).sum()))
+    return np.array(voids), np.array(empty), np.array(film)
+
+
+@pytest.fixture(scope="module", params=[16, 24])
+def tank(request, tmp_path_factory):
+    sim = Simulation(filled_tank(request.param, tmp_path_factory.mktemp("tank")), "cpu")
+    y0 = sim.particles_numpy()
+    return request.param, sim, y0, rise(sim, 0.1)
+
+
+def test_a_filled_tank_with_a_rising_bubble_has_no_voids_and_no_empty_cells(tank):
+    cells, sim, _, (voids, empty, _) = tank
+    assert len(voids) > 50  # steps
+    assert voids.max() == 0 and empty.max() == 0
+
+
+def test_film_retraction_never_empties_a_cell(tank):
+    # Holes (particle-free cells inside) counted just before and after the films retract: the
+    # retraction keeps the partition of space, so it adds none. Before the fix it added up to
+    # one a step at 32 cells (physics/tension.retract_gas_films); the holes g2p opens are closed by
+    # the next solve (a handful at any time, measured 0-7).
+    _, _, _, (_, _, film) = tank
+    assert np.all(film[:, 1] <= film[:, 0])
+    assert film[:, 0].max() <= 10
+
+
+def test_the_bubble_rises_and_keeps_its_gas(tank):
+    cells, sim, start, _ = tank
+    p = sim.particles_numpy()
+    gas0, gas = start["phase"] == PHASE_GAS, p["phase"] == PHASE_GAS
+    # Incompressible gas, yet its J drifts: measured -2.2% at 16 cells (-1.3% before the void pass);
+    # update_gas_J books solver residuals of mixed cells (not this issue's part).
+    assert p["volume"][gas].sum() == pytest.approx(start["volume"][gas0].sum(), rel=0.04)
+    y0 = (start["positions"][gas0, 1]).mean()
+    y = (p["positions"][gas, 1]).mean()
+    # Measured 0.433 L (16 cells) and 0.435 L (24); Hysing et al.'s reference centroid passes 0.42 L
+    # about then (t = 0.1 s is their t = 2.2).
+    assert 0.40 * L < y - y0 < 0.47 * L, (cells, y - y0)
+
+
+def test_without_the_void_pass_the_same_tank_has_voids(tmp_path):
+    # The test above can fail: the same run with the pass switched off grows EMPTY cells inside.
+    sim = Simulation(filled_tank(24, tmp_path), "cpu")
+    voids, empty, _ = rise(sim, 0.1, with_pass=False)
+    assert voids.max() > 0 and empty.max() > 0
+
+
+# ------------------------------------------------------------------ a hole punched into the water
+def pool(out, gas=False):
+    """A 10 x 10 cm closed tank, water 7.5 cm deep, 16 cells across (with gas: a small bubble in a corner
+    makes it a gas scene)."""
+    materials = {"water": Material("water")}
+    shapes = [Box("water", min=(0.0, 0.0), max=(0.1, 0.075))]
+    if gas:
+        materials["air"] = Material("air", kind="gas")
+        shapes.append(Sphere("air", center=(0.085, 0.06), radius=0.008))
+    return Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16), materials=materials, shapes=shapes,
+                 solver=SolverSettings(), output=Output(path=str(out / "pool.usdc")), name="pool")
+
+
+def punch_hole(sim, lo=(0.03, 0.02), hi=(0.05, 0.04)):
+    """Retire the liquid particles in a box: a particle-free hole, 3 x 3 cells, under 3.5 cm of water."""
+    x = sim.particles.numpy("x")
+    inside = np.all((x[:, :2] > lo) & (x[:, :2] < hi), axis=1) & (sim.particles.numpy("phase") == PHASE_LIQUID)
+    sim.particles.active.numpy()[: sim.particles.count][inside] = 0
+    return int(inside.sum())
+
+
+def track(sim, steps):
+    out = []
+    for _ in range(steps):
+        sim.step(sim.stable_dt())
+        out.append((void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up), holes(sim)))
+    return np.array(out)
+
+
+SMALL_HOLE = dict(lo=(0.03, 0.02), hi=(0.0425, 0.0325))  # 2 x 2 cells
+
+
+def test_a_hole_in_liquid_only_water_is_closed_by_the_pressure(tmp_path):
+    sim = Simulation(pool(tmp_path), "cpu")
+    assert punch_hole(sim, **SMALL_HOLE) > 10
+    after = track(sim, 20)
+    assert after[:, 0].max() == 0  # never a free surface
+    # The hole is there, then closed by the volume correction asking each hole cell for its full
+    # deficit (measured 2, 2, then 0 particle-free cells).
+    assert after[0, 1] >= 1 and after[3:, 1].max() == 0
+    off = Simulation(pool(tmp_path), "cpu")
+    punch_hole(off, **SMALL_HOLE)
+    off.voids.apply = lambda dt: None
+    before = track(off, 3)
+    assert before[0, 0] >= 1  # without the pass: an EMPTY cell inside the water, at p = 0
+
+
+def test_air_a_splash_closes_over_becomes_a_rising_bubble(tmp_path):
+    sim = Simulation(pool(tmp_path, gas=True), "cpu")
+    budget0 = sim.gas_budget()
+    n_gas0 = int((sim.particles_numpy()["phase"] == PHASE_GAS).sum())
+    punch_hole(sim)
+    sim.step(sim.stable_dt())
+    p = sim.particles_numpy()
+    trapped = (p["phase"] == PHASE_GAS) & (p["positions"][:, 0] < 0.06)
+    ppc = sim.scene.solver.particles_per_cell
+    # The hole's EMPTY part (its rim cells get fill from the water around) is seeded at ppc a cell.
+    # (a lone void cell elsewhere stays liquid: measured 5 of the 6 void cells seeded).
+    assert 4 * ppc <= trapped.sum() <= ppc * sim.voids.last_voids and trapped.sum() % ppc == 0
+    assert int((p["phase"] == PHASE_GAS).sum()) - n_gas0 == trapped.sum()
+    budget = sim.gas_budget()
+    assert budget["trapped"] > 0
+    assert budget["total"] == pytest.approx(budget0["total"], rel=1e-9)  # booked as taken from the air
+    ids = p["ids"][trapped]
+    y0 = p["positions"][trapped, 1].mean()
+    for _ in range(15):
+        sim.step(sim.stable_dt())
+    q = sim.particles_numpy()
+    mine = np.isin(q["ids"], ids)
+    assert q["positions"][mine, 1].mean() > y0 + 0.003  # buoyant: it rises
+
+
+def splash(out):
+    """A 2.4 cm water disc thrown at 1.5 m/s into a 4 cm pool, 10 x 10 cm closed tank, 32 cells, with
+    water's surface tension and a small air bubble (a gas scene): the pour's splash, small."""
+    return Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 32),
+                 materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
+                 shapes=[Box("water", min=(0.0, 0.0), max=(0.1, 0.04)),
+                         Cylinder("water", center=(0.05, 0.065), radius=0.012, velocity=(0.0, -1.5)),
+                         Sphere("air", center=(0.09, 0.01), radius=0.004)],
+                 output=Output(path=str(out / "splash.usdc")), name="splash")
+
+
+def splash_voids(sim, t_end=0.12):
+    voids = []
+    while sim.time < t_end - 1e-12:
+        dt = min(sim.stable_dt(), t_end - sim.time)
+        sim.step(dt)
+        sim.time += dt
+        voids.append(void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up))
+    return np.array(voids)
+
+
+def test_a_splash_leaves_no_voids_and_its_trapped_air_becomes_bubbles(tmp_path):
+    from warp_mpm_bubbles.io.runner import _voids_line
+
+    sim = Simulation(splash(tmp_path), "cpu")
+    budget0 = sim.gas_budget()
+    voids = splash_voids(sim)
+    # A large void is EMPTY for the one step before its gas arrives, so steps with voids are at most
+    # the pockets (measured: 2 pockets, voids in 2 of 124 steps, 14 void cell-steps in all).
+    assert 1 <= sim.voids.pockets <= 4 and (voids > 0).sum() <= sim.voids.pockets
+    assert sim.gas_budget()["total"] == pytest.approx(budget0["total"], rel=1e-9)
+    assert "frames had cells closed off inside the liquid" in _voids_line(sim)
+    again = Simulation(splash(tmp_path), "cpu")  # the host labelling and the seeding are deterministic
+    splash_voids(again)
+    np.testing.assert_array_equal(again.particles_numpy()["positions"], sim.particles_numpy()["positions"])
+    off = Simulation(splash(tmp_path), "cpu")
+    off.voids.apply = lambda dt: None
+    before = splash_voids(off)
+    assert (before > 0).sum() >= 6 and before.sum() >= 3 * voids.sum()  # measured: 12 steps, 54 cell-steps

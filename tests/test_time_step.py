@@ -47,3 +47,21 @@ def test_viscous_limit(tmp_path):
     sim = at_rest(tmp_path, viscosity=1.0)
     assert "viscous" not in sim.dt_limits()
     assert sim.stable_dt() == pytest.approx(sim.scene.solver.cfl * dx / math.sqrt(9.81 * dx), rel=1e-9)
+
+
+def test_the_run_records_which_limit_set_each_step(tmp_path):
+    # The summary's "steps set by" (io/runner.py): at rest the CFL limit (5.6 ms) sets the 3 steps of a
+    # 1/60 s frame; with strong tension the capillary limit (1.4 ms) does, and cfl then sets none,
+    # which is what a user choosing a cfl preset needs to see.
+    for tension, binding in ((0.0, "cfl"), (0.5, "capillary")):
+        sim = at_rest(tmp_path, surface_tension=tension)
+        sim.advance_to(1.0 / 60.0)
+        counts = sim.stats.limited_by
+        assert sum(counts.values()) == sim.stats.steps
+        assert counts.get(binding, 0) == sim.stats.steps and sim.stats.steps >= 3, counts
+
+
+def test_a_frame_shorter_than_every_limit_is_set_by_the_frame(tmp_path):
+    sim = at_rest(tmp_path)
+    sim.advance_to(1e-4)  # CFL allows 5.6 ms
+    assert sim.stats.limited_by == {"frame": 1}

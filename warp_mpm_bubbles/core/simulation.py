@@ -66,6 +66,7 @@ class SolverStats:
     cg_unconverged: int = 0
     cg_worst_residual: float = 0.0
     dt_history: list[float] = field(default_factory=list)
+    limited_by: dict[str, int] = field(default_factory=dict)  # steps per limit name that set them ("frame": the frame's end)
 
     def record(self, info: SolveInfo):
         self.cg_solves += 1
@@ -106,6 +107,7 @@ class Simulation:
         self.particles = ParticleState(self.device)
         self.fields = GridFields(g, self.device)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device)
+        self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
         self._capturing = False
@@ -232,6 +234,8 @@ class Simulation:
     def _end_step(self, dt: float):
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)
         # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
+        for write in self.report_writers:
+            write(self)
         report = self.read_host(self.fields.max_speed)
         self.max_particle_speed = float(report[0])
         for read in self.report_readers:
@@ -406,10 +410,17 @@ class Simulation:
     def advance_to(self, t_end: float, on_step=None):
         """Substep to exactly t_end, splitting what remains into equal steps under the limits;
         `on_step(dt, remaining)` runs after each step (the runner's heartbeat and step guard)."""
+        setter = None  # the limit that split this interval into steps
         while self.time < t_end:
             remaining = t_end - self.time
-            n = max(1, math.ceil(remaining / self.stable_dt() - 1e-9))
+            limits = self.dt_limits()
+            name = min(limits, key=limits.get)
+            n = max(1, math.ceil(remaining / limits[name] - 1e-9))
             dt = remaining / n
+            if n == 1 and remaining < limits[name]:
+                name = setter or "frame"  # the split's last step, or a frame shorter than every limit
+            setter = name
+            self.stats.limited_by[name] = self.stats.limited_by.get(name, 0) + 1
             self.step(dt)
             self.time = t_end if n == 1 else self.time + dt
             if on_step:

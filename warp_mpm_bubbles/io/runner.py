@@ -209,6 +209,12 @@ def summary(result: RunResult) -> str:
     lines.append(_voids_line(sim))
     if "surface" in timer.seconds:  # built once per frame, not per step
         lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")
+    solver = sim.scene.solver
+    lines.append(f"  quality {solver.quality}: cfl {solver.cfl:g}, cg_tolerance {solver.cg_tolerance:g}, "
+                 f"{solver.particles_per_cell} particles per cell, refine {solver.refine} "
+                 f"(cell {sim.grid.dx:.4g} m); steps set by "
+                 + ", ".join(f"{name} {100 * n / max(st.steps, 1):.0f}%"
+                             for name, n in sorted(st.limited_by.items(), key=lambda kv: -kv[1])))
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

@@ -151,7 +151,7 @@ def test_a_near_vacuum_cavity_collapses_on_the_cylindrical_rayleigh_time(tmp_pat
     # 2D analogue of Rayleigh's collapse (tests/cavity.py): an empty cylinder R0 in a free water
     # annulus 3 R0 across reaches R = R0/2 at 0.969 R0 sqrt(rho/p_inf) (RK4; R -> 0 at 1.168, 3D
     # Rayleigh 0.915). At 8 cells per R0 it should arrive within 10% and keep the water's volume.
-    from cavity import T_UNIT, collapse_time
+    from cavity import collapse_time
 
     run = collapse_time(8, tmp_path, radii=(0.5,), t_end=1.6, max_steps=150)
     print(run)

@@ -68,19 +68,19 @@ TK, GK, TE = "core/transfer_kernels.py", "core/grid_kernels.py", "physics/tensio
 SIM = "core/simulation.py"
 _P2G_GAS = ("pg = gas_pressure(law[p], J[p], gamma[p], p_atm)\n"
             "    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)")
-_G2P_MOVE = ("moved = xp + dt * vp\n    xn = clamp_to_domain(moved, domain_hi, dx, dim)\n    x[p] = xn\n"
-             "    v[p] = wall_stopped(moved, xn, vp, dim)\n    C[p] = Cp")  # g2p's, not foam's
+_G2P_MOVE = ("moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))\n"
+             "        x[p] = xn\n        vn = wall_stopped(moved, xn, vp, wp.static(dim))")  # g2p's, not foam's
 MUTATIONS = [
     # --- transfers
-    ("apic_dropped_p2g", TK, "w * m * (vel + wp.dot(grad, dpos))", "w * m * vel", [VORTEX, VISCOSITY]),
-    ("velocity_gain_0.2pct", TK, "v[p] = wall_stopped(moved, xn, vp, dim)\n    C[p] = Cp",
-     "v[p] = 1.002 * wall_stopped(moved, xn, vp, dim)\n    C[p] = Cp", [VORTEX, FREEFALL]),
+    ("apic_dropped_p2g", TK, "wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm)", "wp.vec2(wm * vel, wm)", [VORTEX, VISCOSITY]),
+    ("velocity_gain_0.2pct", TK, "vn = wall_stopped(moved, xn, vp, wp.static(dim))",
+     "vn = 1.002 * wall_stopped(moved, xn, vp, wp.static(dim))", [VORTEX, FREEFALL]),
     ("apic_gradient_x0.9", TK, "grad += (4.0 / (dx * dx)) * w * g * dpos", "grad += (3.6 / (dx * dx)) * w * g * dpos",
      [VORTEX, VISCOSITY]),
     ("bspline_centre_weight", TK, "0.75 - (f - 1.0) * (f - 1.0)", "0.76 - (f - 1.0) * (f - 1.0)", [FREEFALL, VORTEX]),
     ("advection_x1.03", TK, _G2P_MOVE, _G2P_MOVE.replace("xp + dt * vp", "xp + 1.03 * dt * vp"), [FREEFALL]),
-    ("liquid_volume_splat_x1.03", TK, "wp.atomic_add(cell_volume, s.base[0] + i, s.base[1] + j, s.base[2] + k, w * vol)",
-     "wp.atomic_add(cell_volume, s.base[0] + i, s.base[1] + j, s.base[2] + k, 1.03 * w * vol)", [HYDROSTATIC, LAYERED]),
+    ("liquid_volume_splat_x1.03", TK, "sc.base[2] + k, wp.vec2(w * m, w * vol))",
+     "sc.base[2] + k, wp.vec2(w * m, 1.03 * w * vol))", [HYDROSTATIC, LAYERED]),
     ("gas_volume_rate_x1.05", TK, "J[p] = J[p] * wp.exp(wp.clamp(dt * r, -1.0, 1.0))",
      "J[p] = J[p] * wp.exp(wp.clamp(1.05 * dt * r, -1.0, 1.0))", [KAPPA, MINNAERT_2D]),
     # --- gas law
@@ -107,10 +107,10 @@ MUTATIONS = [
      "elif vl > 0.0:\n                rho = 0.97 * ml / vl", [LAYERED]),
     ("free_surface_fraction_shift", GK, "theta = (phi_fluid - 0.5) / (phi_fluid - phi_empty)",
      "theta = (phi_fluid - 0.4) / (phi_fluid - phi_empty)", [HYDROSTATIC, TANK]),
-    ("divergence_z_x0.95", GK, "div += vel_w[i, j, k + 1] - vel_w[i, j, k]",
-     "div += 0.95 * (vel_w[i, j, k + 1] - vel_w[i, j, k])", [DIV3D, VOL3D]),
-    ("volume_correction_x2", GK, "target = volume_rate * excess",
-     "target = 2.0 * volume_rate * excess", [VOLCORR, VOL3D]),
+    ("divergence_z_x0.95", GK, "div += vel_w[i, j, k + 1] - vel_w[i, j, k]\n    b = -div",
+     "div += 0.95 * (vel_w[i, j, k + 1] - vel_w[i, j, k])\n    b = -div", [DIV3D, VOL3D]),
+    ("volume_correction_x2", GK, "target = volume_rate * cell_excess(",
+     "target = 2.0 * volume_rate * cell_excess(", [VOLCORR, VOL3D]),
     ("pressure_gradient_x0.97", GK, "vel[i, j, k] = vel[i, j, k] - dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx",
      "vel[i, j, k] = vel[i, j, k] - 0.97 * dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx", [DIV3D, HYDROSTATIC]),
     # --- interface (sharp liquid-gas faces, Wood mixture)
@@ -148,8 +148,8 @@ MUTATIONS = [
      'self.mu_liquid = 1.03 * mu([m for m in materials if m.kind == "liquid"])', [VISCOSITY]),
     ("no_slip_mirror_weakened", "physics/viscous_solve.py", "        v_lo = 2.0 * v_lo - v_hi\n",
      "        v_lo = 2.0 * v_lo - 0.5 * v_hi\n", [VISCOSITY]),
-    ("viscous_dt_limit_x2", "physics/viscosity.py", "return 2.0 / self.rate if self.rate > 0.0",
-     "return 4.0 / self.rate if self.rate > 0.0", [STEP, VISCOSITY]),
+    ("viscous_dt_limit_x2", "physics/viscosity.py", "return 2.0 / rate if rate > 0.0",
+     "return 4.0 / rate if rate > 0.0", [STEP, VISCOSITY]),
     ("cfl_x2", SIM, '"cfl": s.cfl * self.grid.dx / speed', '"cfl": 2.0 * s.cfl * self.grid.dx / speed',
      [STEP, "tests/test_solver.py::test_time_steps_land_on_frames_and_respect_cfl"]),
     # --- effects

@@ -367,6 +367,31 @@ def volume_excess(vl: float, vg: float, enclosed: int, inv_dx2: float, dx: float
     return excess
 
 
+@wp.func
+def is_hole(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i,
+            inv_dx3: float, pinned: int):
+    """A near-empty cell with no gas and no EMPTY neighbour is a hole inside the material
+    (core/voids.py): its deficit counts whatever its neighbours are, so the correction closes it."""
+    if pinned != 0 or fill_fraction(liq_volume, gas_volume, two_phase, c, inv_dx3) > HOLE_FRACTION:
+        return False
+    return two_phase == 0 or gas_volume[c[0], c[1], c[2]] == 0.0
+
+
+@wp.func
+def cell_excess(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
+                phase: wp.array3d(dtype=wp.int32), two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float,
+                dx: float):
+    """The volume excess the correction acts on in a cell it governs (volume_excess)."""
+    held = liq_volume[c[0], c[1], c[2]]
+    gas_here = float(0.0)
+    if two_phase != 0:
+        gas_here = gas_volume[c[0], c[1], c[2]]
+    if two_phase != 0 and phase[c[0], c[1], c[2]] == PHASE_GAS:  # sharp, incompressible gas: its own over-fill
+        held = gas_here  # (retracted films pile it into the bubble) spreads too; its J is fixed anyway
+        gas_here = 0.0
+    return volume_excess(held, gas_here, enclosed, inv_dx2, dx)
+
+
 @wp.kernel
 def pressure_diagonal_and_rhs(
     types: wp.array3d(dtype=wp.int32),
@@ -421,12 +446,8 @@ def pressure_diagonal_and_rhs(
     sides = neighbour_kinds(types, phase, wp.vec3i(i, j, k), dim, two_phase)
     pinned = sides[0]
     enclosed = sides[1]
-    # A near-empty cell with no gas and no EMPTY neighbour is a hole inside the material
-    # (core/voids.py): its deficit counts whatever its neighbours are, so the correction closes it.
-    c = wp.vec3i(i, j, k)
-    if pinned == 0 and fill_fraction(liq_volume, gas_volume, two_phase, c, inv_dx2 / dx) <= HOLE_FRACTION:
-        if two_phase == 0 or gas_volume[i, j, k] == 0.0:
-            enclosed = 1
+    if is_hole(liq_volume, gas_volume, two_phase, wp.vec3i(i, j, k), inv_dx2 / dx, pinned):
+        enclosed = 1
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
         div += vel_w[i, j, k + 1] - vel_w[i, j, k]
@@ -441,15 +462,8 @@ def pressure_diagonal_and_rhs(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        held = liq_volume[i, j, k]
-        gas_here = float(0.0)
-        if two_phase != 0:
-            gas_here = gas_volume[i, j, k]
-        if two_phase != 0 and phase[i, j, k] == PHASE_GAS:  # sharp, incompressible gas: its own over-fill
-            held = gas_here  # (retracted films pile it into the bubble) spreads too; its J is fixed anyway
-            gas_here = 0.0
-        excess = volume_excess(held, gas_here, enclosed, inv_dx2, dx)
-        target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
+        target = volume_rate * cell_excess(liq_volume, gas_volume, phase, two_phase, wp.vec3i(i, j, k), enclosed,
+                                           inv_dx2, dx)  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
             target_div[i, j, k] = target

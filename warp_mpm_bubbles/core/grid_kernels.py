@@ -190,6 +190,17 @@ def is_phase_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.
 
 
 @wp.func
+def cell_divergence(vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
+                    c: wp.vec3i, dim: int):
+    """A cell's net outflow through its faces, velocity units (div u dx): x and y, then z in 3D."""
+    i, j, k = c[0], c[1], c[2]
+    div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
+    if dim == 3:
+        div += vel_w[i, j, k + 1] - vel_w[i, j, k]
+    return div
+
+
+@wp.func
 def is_liquid_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i):
     """A fluid cell on the liquid side of the interface (cells outside the array are not)."""
     return is_phase_cell(types, phase, c, PHASE_LIQUID)
@@ -442,7 +453,7 @@ def pressure_diagonal_and_rhs(
         return
     inv_dx2 = 1.0 / (dx * dx)
     d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
-    div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
+    div = cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
     sides = neighbour_kinds(types, phase, wp.vec3i(i, j, k), dim, two_phase)
     pinned = sides[0]
     enclosed = sides[1]
@@ -450,7 +461,6 @@ def pressure_diagonal_and_rhs(
         enclosed = 1
     if dim == 3:
         d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
-        div += vel_w[i, j, k + 1] - vel_w[i, j, k]
     b = -div / (dx * dt)
     extra = float(0.0)
     vg = float(0.0)

@@ -213,8 +213,8 @@ def summary(result: RunResult) -> str:
     lines.append(f"  quality {solver.quality}: cfl {solver.cfl:g}, cg_tolerance {solver.cg_tolerance:g}, "
                  f"{solver.particles_per_cell} particles per cell, refine {solver.refine} "
                  f"(cell {sim.grid.dx:.4g} m); steps set by "
-                 + ", ".join(f"{name} {100 * n / max(st.steps, 1):.0f}%"
-                             for name, n in sorted(st.limited_by.items(), key=lambda kv: -kv[1])))
+                 + ", ".join(f"{name} {100 * n / max(sum(st.limited_by.values()), 1):.0f}%"  # this process's
+                             for name, n in sorted(st.limited_by.items(), key=lambda kv: -kv[1])))  # steps: not resumed ones
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")
     lines.append(f"  stages run: {', '.join(timer.stages_run)}")
     return "\n".join(lines)

@@ -155,9 +155,7 @@ def gas_cell_expansion(
     i, j, k = wp.tid()
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
         return
-    div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
-    if dim == 3:
-        div += vel_w[i, j, k + 1] - vel_w[i, j, k]
+    div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
     wp.atomic_max(out, slot, wp.abs(div) / dx)
 
 

@@ -10,10 +10,13 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
 1. counts, on the device, EMPTY interior cells that have a fluid or solid cell above them in their
    column (against gravity; without gravity every EMPTY interior cell). Open air above a free
    surface has none, so a calm scene reads one scalar and stops here.
-2. otherwise reads the cell types (one host read of an int32 per cell, only on steps that have such
-   cells) and labels the face-connected EMPTY regions (grid.connected_labels). A region is open air
-   if it reaches an open wall (an EMPTY ghost cell) or the domain's top layer (without gravity: any
-   side), the rule diagnostics.void_cells counts by; every other EMPTY cell is a void.
+2. otherwise finds the voids by the rule diagnostics.void_cells counts by (grid.closed_empty_cells:
+   a face-connected EMPTY region is open air if it reaches an open wall, an EMPTY ghost cell, or the
+   domain's top layer; without gravity any side; every other EMPTY cell is a void). The device
+   marks what is open by position, carries it along lines of EMPTY cells and counts the EMPTY cells
+   it did not reach (a second scalar read; labelling every EMPTY cell on the host cost 60 ms a step
+   under a falling 32^3 block). Only if some are left does the host read the types (one int32 per
+   cell) and label those cells' regions (grid.connected_labels).
 3. makes each void of a region under POCKET_CELLS cells a fluid cell of the phase its volumes say
    (liquid as a rule). Its rest-volume fraction is about 0, so the volume correction asks it to
    contract by its full deficit and the pressure closes it (grid_kernels.pressure_diagonal_and_rhs
@@ -44,6 +47,9 @@ from .grid_kernels import cell_type_at
 wp.set_module_options({"enable_backward": False})
 
 POCKET_CELLS = 4  # a void region this large is air, not a gap: trapped air with gas, else left EMPTY
+# Passes of line sweeps over the axes before the host searches what they left: one reaches the air
+# under a falling block or a splash sheet (along its rows), two an L-shaped pocket's far arm.
+SWEEP_ROUNDS = 2
 VOID_FILL = wp.constant(1.0e-6)  # rest-volume fraction written into a void with none: keeps its faces' density defined
 
 
@@ -148,23 +154,91 @@ def clear_holes(count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.in
         gas_kv[i, j, k] = 0.0
 
 
-def void_mask(types: np.ndarray, ghost, up) -> tuple[np.ndarray, np.ndarray]:
-    """The void cells of a cell-type array: (cells, labels), an (m, 3) index array of the EMPTY cells
-    whose face-connected EMPTY region reaches neither an open wall nor the domain's top layer (any
-    side without gravity), and each one's region label (see diagnostics.void_cells)."""
-    empty = np.argwhere(types == EMPTY)
-    if len(empty) == 0:
-        return empty, np.zeros(0, int)
-    labels = connected_labels(empty, 3, faces_only=True)
-    shape, ghost = np.array(types.shape), np.array(ghost)
-    in_ghost = ((empty < ghost) | (empty >= shape - ghost)).any(axis=1)
-    axis, sign = up
-    if axis < 0:
-        top = ((empty == ghost) | (empty == shape - ghost - 1)).any(axis=1)
-    else:
-        top = empty[:, axis] == (shape[axis] - ghost[axis] - 1 if sign > 0 else ghost[axis])
-    closed = ~np.isin(labels, np.unique(labels[in_ghost | top])) & ~in_ghost
-    return empty[closed], labels[closed]
+@wp.kernel
+def mark_open_air(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
+                  up_sign: int, ghost: wp.vec3i, reached: wp.array3d(dtype=wp.int32)):
+    """1 on the EMPTY cells that are open air by position (grid.open_air_seeds: ghost cells, the top
+    layer; without gravity the outer layer) and, with gravity, on those with nothing but EMPTY cells
+    above them in their column (that column reaches the top layer); 0 elsewhere."""
+    i, j, k = wp.tid()
+    reached[i, j, k] = 0
+    if types[i, j, k] != EMPTY:
+        return
+    c = wp.vec3i(i, j, k)
+    for a in range(3):
+        if c[a] < ghost[a] or c[a] >= types.shape[a] - ghost[a]:
+            reached[i, j, k] = 1
+            return
+    if up_axis >= 0:
+        h = c[up_axis]
+        if up_sign < 0:
+            h = types.shape[up_axis] - 1 - h
+        col = c
+        col[up_axis] = 0
+        if h > top[col[0], col[1], col[2]]:
+            reached[i, j, k] = 1
+        return
+    for a in range(3):
+        if ghost[a] > 0 and (c[a] == ghost[a] or c[a] == types.shape[a] - ghost[a] - 1):
+            reached[i, j, k] = 1
+
+
+@wp.func
+def carry_open_air(types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32), c: wp.vec3i, run: int):
+    """One cell of a line sweep: whether open air carries on past it (it is EMPTY and reached)."""
+    if types[c[0], c[1], c[2]] != EMPTY:
+        return 0
+    if reached[c[0], c[1], c[2]] != 0:
+        return 1
+    if run != 0:
+        reached[c[0], c[1], c[2]] = 1
+    return run
+
+
+@wp.kernel
+def sweep_open_air(types: wp.array3d(dtype=wp.int32), axis: int, reached: wp.array3d(dtype=wp.int32)):
+    """Along each line of cells parallel to `axis` (one thread a line), forward then back: an EMPTY
+    cell face-connected along the line to a reached one is reached. One pass carries the open air any
+    distance along its lines, so a few passes over the axes reach what a flood fill would in shapes
+    that are not mazes; the count after them says whether any EMPTY cell is left to search."""
+    i, j, k = wp.tid()
+    c = wp.vec3i(i, j, k)
+    n = types.shape[axis]
+    run = int(0)
+    for s in range(n):
+        c[axis] = s
+        run = carry_open_air(types, reached, c, run)
+    run = int(0)
+    for s in range(n):
+        c[axis] = n - 1 - s
+        run = carry_open_air(types, reached, c, run)
+
+
+@wp.kernel
+def count_unreached_empty(types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32),
+                          counter: wp.array(dtype=wp.int32)):
+    i, j, k = wp.tid()
+    if types[i, j, k] == EMPTY and reached[i, j, k] == 0:
+        wp.atomic_add(counter, 0, 1)
+
+
+def unreached_regions(types: np.ndarray, reached: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The voids among the EMPTY cells the sweeps did not reach: the face-connected regions of them
+    with no face neighbour that was reached (any such neighbour is open air, so its region is too).
+    Returns (cells, labels) as grid.closed_empty_cells does, which it equals."""
+    cells = np.argwhere((types == EMPTY) & (reached == 0))
+    if len(cells) == 0:
+        return cells, np.zeros(0, int)
+    labels = connected_labels(cells, 3, faces_only=True)
+    touches = np.zeros(len(cells), bool)
+    for a in range(3):
+        for s in (-1, 1):
+            n = cells.copy()
+            n[:, a] += s
+            inside = (n[:, a] >= 0) & (n[:, a] < types.shape[a])
+            touches[inside] |= reached[tuple(n[inside].T)] != 0
+    closed = ~np.isin(labels, np.unique(labels[touches]))
+    return cells[closed], labels[closed]
 
 
 class VoidPass:
@@ -180,6 +254,7 @@ class VoidPass:
         self.top = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
         self.counter = wp.zeros(1, dtype=wp.int32, device=sim.device)
         self.mask = wp.zeros(g.cells, dtype=wp.int32, device=sim.device)
+        self.reached = wp.zeros(g.cells, dtype=wp.int32, device=sim.device)  # EMPTY cells known to be open air
         liquids = [m for m in sim.scene.materials.values() if m.kind == "liquid"]
         self.rho_liquid = max((m.density for m in liquids), default=1000.0)
         gases = [i for i, m in enumerate(sim.scene.materials.values()) if m.is_gas]
@@ -207,21 +282,42 @@ class VoidPass:
         sim.launch(count_covered_empty, g.cells, [f.types, self.top, up_axis, up_sign, ghost, self.counter])
         self.last_voids = 0
         if int(self.counter.numpy()[0]) > 0:  # the one scalar read: some EMPTY cell is covered
-            self._fill_voids()
+            voids = self.find_voids()
+            if voids is not None:
+                self._fill_voids(*voids)
         if self.clear_holes:
             sim.launch(clear_holes, g.cells, [f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
                                               sim.two_phase, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass,
                                               f.gas_volume, f.gas_pv, f.gas_kv])
 
-    def _fill_voids(self):
+    def find_voids(self):
+        """The void cells and their region labels (grid.closed_empty_cells' result), with the cell
+        types read on the host, or None when there is none. The device marks the EMPTY cells that are
+        open air by position, carries that along lines of EMPTY cells (SWEEP_ROUNDS passes over the
+        axes) and counts the EMPTY cells left: one more scalar read, and usually that is all (the air
+        under a falling block is reached along its rows). Only when some are left does the host read
+        the types and search those cells' regions."""
+        sim, g, f = self.sim, self.sim.grid, self.sim.fields
+        up_axis, up_sign = sim.up
+        sim.launch(mark_open_air, g.cells, [f.types, self.top, up_axis, up_sign, wp.vec3i(*g.ghost), self.reached])
+        for _ in range(SWEEP_ROUNDS):
+            for a in range(g.dim):
+                lines = list(g.cells)
+                lines[a] = 1
+                sim.launch(sweep_open_air, tuple(lines), [f.types, a, self.reached])
+        self.counter.zero_()
+        sim.launch(count_unreached_empty, g.cells, [f.types, self.reached, self.counter])
+        if int(self.counter.numpy()[0]) == 0:
+            return None
+        types = f.types.numpy().copy()  # the justified host read (only on steps with unreached EMPTY cells)
+        cells, labels = unreached_regions(types, self.reached.numpy())
+        return (types, cells, labels) if len(cells) else None
+
+    def _fill_voids(self, types, cells, labels):
         """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones stay
         EMPTY this step and, in a scene with gas, are seeded with gas for the next (trapped air)."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
-        types = f.types.numpy().copy()  # the justified host read (only on steps with covered EMPTY cells)
-        cells, labels = void_mask(types, g.ghost, sim.up)
         self.last_voids = len(cells)
-        if len(cells) == 0:
-            return
         self.by_frame[sim.frame] = max(self.by_frame.get(sim.frame, 0), len(cells))
         ids, inverse, sizes = np.unique(labels, return_inverse=True, return_counts=True)
         large = sizes[inverse] >= POCKET_CELLS

@@ -226,26 +226,12 @@ def test_a_splash_leaves_no_voids_and_its_trapped_air_becomes_bubbles(tmp_path):
 
 
 def _void_search(types, ghost, up, dim):
-    """VoidPass.find_voids (the device sweeps, then the host on what they left) on a cell-type array."""
-    from types import SimpleNamespace
+    """VoidSearch.find (the covered cells' box, the device sweeps in it, the host on what they left) on
+    a cell-type array: the void cells and their labels."""
+    from warp_mpm_bubbles.core.voids import VoidSearch
 
-    from warp_mpm_bubbles.core import voids
-
-    shape = types.shape
     launch = lambda kernel, d, inputs: wp.launch(kernel, dim=d, inputs=inputs, device="cpu")  # noqa: E731
-    sim = SimpleNamespace(grid=SimpleNamespace(cells=shape, ghost=ghost, dim=dim), up=up, launch=launch,
-                          fields=SimpleNamespace(types=wp.array(types, dtype=wp.int32, device="cpu")))
-    search = voids.VoidPass.__new__(voids.VoidPass)
-    search.sim = sim
-    column = list(shape)
-    if up[0] >= 0:
-        column[up[0]] = 1
-    search.top = wp.full(tuple(column), -1, dtype=wp.int32, device="cpu")
-    search.counter = wp.zeros(1, dtype=wp.int32, device="cpu")
-    search.reached = wp.zeros(shape, dtype=wp.int32, device="cpu")
-    if up[0] >= 0:
-        launch(voids.covered_top, shape, [sim.fields.types, up[0], up[1], wp.vec3i(*ghost), search.top])
-    found = search.find_voids()
+    found = VoidSearch(types.shape, ghost, up, dim, "cpu", launch).find(wp.array(types, dtype=wp.int32, device="cpu"))
     return (np.zeros((0, 3), int), np.zeros(0, int)) if found is None else found[1:]
 
 

@@ -8,13 +8,13 @@ in and the hole stays (a filled tank grew 17-56 of them around a rising bubble a
 After the cells are classified (and colliders have marked theirs), `VoidPass.apply`:
 
 1. counts, on the device, EMPTY interior cells that have a fluid or solid cell above them in their
-   column (against gravity; without gravity every EMPTY interior cell). Open air above a free
-   surface has none, so a calm scene reads one scalar and stops here.
+   column (against gravity; without gravity every EMPTY interior cell), and their box. Open air
+   above a free surface has none, so a calm scene reads these 7 ints and stops here.
 2. otherwise finds the voids by the rule diagnostics.void_cells counts by (grid.closed_empty_cells:
    a face-connected EMPTY region is open air if it reaches an open wall, an EMPTY ghost cell, or the
    domain's top layer; without gravity any side; every other EMPTY cell is a void). The device
-   marks what is open by position, carries it along lines of EMPTY cells and counts the EMPTY cells
-   it did not reach (a second scalar read; labelling every EMPTY cell on the host cost 60 ms a step
+   marks what is open by position in that box, carries it along lines of EMPTY cells and counts the
+   EMPTY cells it did not reach (VoidSearch; a second scalar read; labelling every EMPTY cell on the host cost 60 ms a step
    under a falling 32^3 block). Only if some are left does the host read the types (one int32 per
    cell) and label those cells' regions (grid.connected_labels).
 3. makes each void of a region under POCKET_CELLS cells a fluid cell of the phase its volumes say
@@ -74,9 +74,10 @@ def covered_top(types: wp.array3d(dtype=wp.int32), up_axis: int, up_sign: int, g
 
 @wp.kernel
 def count_covered_empty(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
-                        up_sign: int, ghost: wp.vec3i, counter: wp.array(dtype=wp.int32)):
+                        up_sign: int, ghost: wp.vec3i, covered: wp.array(dtype=wp.int32)):
     """EMPTY interior cells below a fluid or solid cell of their column: the only ones that can be voids
-    (with gravity; up_axis < 0 counts every EMPTY interior cell)."""
+    (with gravity; up_axis < 0 counts every EMPTY interior cell). covered: their count, then the lowest
+    and highest index of them on each axis (the box the search below needs)."""
     i, j, k = wp.tid()
     c = wp.vec3i(i, j, k)
     for a in range(3):
@@ -92,7 +93,10 @@ def count_covered_empty(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype
         col[up_axis] = 0
         if h > top[col[0], col[1], col[2]]:
             return
-    wp.atomic_add(counter, 0, 1)
+    wp.atomic_add(covered, 0, 1)
+    for a in range(3):
+        wp.atomic_min(covered, 1 + a, c[a])
+        wp.atomic_max(covered, 4 + a, c[a])
 
 
 @wp.kernel
@@ -155,12 +159,13 @@ def clear_holes(count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.in
 
 
 @wp.kernel
-def mark_open_air(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
+def mark_open_air(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
                   up_sign: int, ghost: wp.vec3i, reached: wp.array3d(dtype=wp.int32)):
     """1 on the EMPTY cells that are open air by position (grid.open_air_seeds: ghost cells, the top
     layer; without gravity the outer layer) and, with gravity, on those with nothing but EMPTY cells
-    above them in their column (that column reaches the top layer); 0 elsewhere."""
-    i, j, k = wp.tid()
+    above them in their column (that column reaches the top layer); 0 elsewhere. Over the box from lo."""
+    ti, tj, tk = wp.tid()
+    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
     reached[i, j, k] = 0
     if types[i, j, k] != EMPTY:
         return
@@ -196,36 +201,39 @@ def carry_open_air(types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=
 
 
 @wp.kernel
-def sweep_open_air(types: wp.array3d(dtype=wp.int32), axis: int, reached: wp.array3d(dtype=wp.int32)):
-    """Along each line of cells parallel to `axis` (one thread a line), forward then back: an EMPTY
-    cell face-connected along the line to a reached one is reached. One pass carries the open air any
-    distance along its lines, so a few passes over the axes reach what a flood fill would in shapes
-    that are not mazes; the count after them says whether any EMPTY cell is left to search."""
-    i, j, k = wp.tid()
-    c = wp.vec3i(i, j, k)
-    n = types.shape[axis]
+def sweep_open_air(lo: wp.vec3i, hi: wp.vec3i, types: wp.array3d(dtype=wp.int32), axis: int,
+                   reached: wp.array3d(dtype=wp.int32)):
+    """Along each line of cells parallel to `axis` within the box [lo, hi) (one thread a line), forward
+    then back: an EMPTY cell face-connected along the line to a reached one is reached. One pass carries
+    the open air any distance along its lines, so a few passes over the axes reach what a flood fill
+    would in shapes that are not mazes; the count after them says whether any EMPTY cell is left."""
+    ti, tj, tk = wp.tid()
+    c = wp.vec3i(ti + lo[0], tj + lo[1], tk + lo[2])
     run = int(0)
-    for s in range(n):
+    for s in range(lo[axis], hi[axis]):
         c[axis] = s
         run = carry_open_air(types, reached, c, run)
     run = int(0)
-    for s in range(n):
-        c[axis] = n - 1 - s
+    for s in range(lo[axis], hi[axis]):
+        c[axis] = hi[axis] - 1 - (s - lo[axis])
         run = carry_open_air(types, reached, c, run)
 
 
 @wp.kernel
-def count_unreached_empty(types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32),
+def count_unreached_empty(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32),
                           counter: wp.array(dtype=wp.int32)):
-    i, j, k = wp.tid()
+    ti, tj, tk = wp.tid()
+    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
     if types[i, j, k] == EMPTY and reached[i, j, k] == 0:
         wp.atomic_add(counter, 0, 1)
 
 
-def unreached_regions(types: np.ndarray, reached: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The voids among the EMPTY cells the sweeps did not reach: the face-connected regions of them
-    with no face neighbour that was reached (any such neighbour is open air, so its region is too).
-    Returns (cells, labels) as grid.closed_empty_cells does, which it equals."""
+def unreached_regions(types: np.ndarray, reached: np.ndarray, lo) -> tuple[np.ndarray, np.ndarray]:
+    """The voids among the EMPTY cells the sweeps did not reach in the search box (types and reached
+    cut to it, `lo` its first cell): the face-connected regions of them with no face neighbour that was
+    reached (any such neighbour is open air, so its region is too). Every such cell lies inside the box
+    with its neighbours (the box is the covered cells' grown by one). Returns (cells, labels) as
+    grid.closed_empty_cells does, which it equals."""
     cells = np.argwhere((types == EMPTY) & (reached == 0))
     if len(cells) == 0:
         return cells, np.zeros(0, int)
@@ -238,23 +246,71 @@ def unreached_regions(types: np.ndarray, reached: np.ndarray) -> tuple[np.ndarra
             inside = (n[:, a] >= 0) & (n[:, a] < types.shape[a])
             touches[inside] |= reached[tuple(n[inside].T)] != 0
     closed = ~np.isin(labels, np.unique(labels[touches]))
-    return cells[closed], labels[closed]
+    return cells[closed] + np.asarray(lo), labels[closed]
+
+
+class VoidSearch:
+    """Finds the voids of a cell-type array on the device, as grid.closed_empty_cells defines them;
+    `launch(kernel, dim, inputs)` launches on the arrays' device. See find()."""
+
+    def __init__(self, cells, ghost, up, dim: int, device, launch):
+        self.cells, self.ghost, self.up, self.dim, self.launch = tuple(cells), tuple(ghost), up, dim, launch
+        column = list(cells)
+        if up[0] >= 0:
+            column[up[0]] = 1
+        self.top = wp.zeros(tuple(column), dtype=wp.int32, device=device)
+        big = np.iinfo(np.int32).max
+        self.covered_reset = wp.array([0, big, big, big, -1, -1, -1], dtype=wp.int32, device=device)
+        self.covered = wp.zeros(7, dtype=wp.int32, device=device)  # count, then the box's lowest, highest cell
+        self.counter = wp.zeros(1, dtype=wp.int32, device=device)
+        self.reached = wp.zeros(cells, dtype=wp.int32, device=device)  # EMPTY cells known to be open air
+
+    def find(self, types):
+        """(types on the host, void cells, their region labels), or None when there is no void.
+
+        1. Count the covered EMPTY cells (below a fluid or solid cell of their column; without gravity
+           every EMPTY interior cell) and their box: one small read, and a calm scene stops here.
+        2. In that box grown by one cell (its outer layer is open air or not EMPTY), mark the EMPTY
+           cells that are open air by position, carry the mark along lines of EMPTY cells
+           (SWEEP_ROUNDS passes over the axes) and count the cells left: one more scalar, and usually
+           that is all (the air under a falling block is reached along its rows).
+        3. Only when some are left, read the types and label those cells' regions on the host."""
+        (up_axis, up_sign), ghost = self.up, wp.vec3i(*self.ghost)
+        wp.copy(self.covered, self.covered_reset)
+        if up_axis >= 0:
+            self.top.fill_(-1)
+            self.launch(covered_top, self.cells, [types, up_axis, up_sign, ghost, self.top])
+        self.launch(count_covered_empty, self.cells, [types, self.top, up_axis, up_sign, ghost, self.covered])
+        covered = self.covered.numpy()
+        if covered[0] == 0:
+            return None
+        lo, hi = np.maximum(covered[1:4] - 1, 0), np.minimum(covered[4:7] + 2, self.cells)
+        box, start, end = tuple(int(h - l) for l, h in zip(lo, hi)), wp.vec3i(*lo), wp.vec3i(*hi)
+        self.launch(mark_open_air, box, [start, types, self.top, up_axis, up_sign, ghost, self.reached])
+        for _ in range(SWEEP_ROUNDS):
+            for a in range(self.dim):
+                lines = list(box)
+                lines[a] = 1
+                self.launch(sweep_open_air, tuple(lines), [start, end, types, a, self.reached])
+        self.counter.zero_()
+        self.launch(count_unreached_empty, box, [start, types, self.reached, self.counter])
+        if int(self.counter.numpy()[0]) == 0:
+            return None
+        host = types.numpy().copy()  # the justified host read (only on steps with unreached EMPTY cells)
+        inside = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+        cells, labels = unreached_regions(host[inside], self.reached.numpy()[inside], lo)
+        return (host, cells, labels) if len(cells) else None
 
 
 class VoidPass:
-    """Finds the voids after the cells are classified and makes them liquid (or, with gas, trapped
-    air); see the module docstring. `last_voids`: void cells found this step (the run's report)."""
+    """Finds the voids after the cells are classified (VoidSearch) and makes them liquid (or, with gas,
+    trapped air); see the module docstring. `last_voids`: void cells found this step (the run's report)."""
 
     def __init__(self, sim):
         self.sim = sim
         g = sim.grid
-        column = list(g.cells)
-        if sim.up[0] >= 0:
-            column[sim.up[0]] = 1
-        self.top = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
-        self.counter = wp.zeros(1, dtype=wp.int32, device=sim.device)
+        self.search = VoidSearch(g.cells, g.ghost, sim.up, g.dim, sim.device, sim.launch)
         self.mask = wp.zeros(g.cells, dtype=wp.int32, device=sim.device)
-        self.reached = wp.zeros(g.cells, dtype=wp.int32, device=sim.device)  # EMPTY cells known to be open air
         liquids = [m for m in sim.scene.materials.values() if m.kind == "liquid"]
         self.rho_liquid = max((m.density for m in liquids), default=1000.0)
         gases = [i for i, m in enumerate(sim.scene.materials.values()) if m.is_gas]
@@ -273,45 +329,14 @@ class VoidPass:
 
     def apply(self, dt: float):
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
-        up_axis, up_sign = sim.up
-        ghost = wp.vec3i(*g.ghost)
-        self.counter.zero_()
-        if up_axis >= 0:
-            self.top.fill_(-1)
-            sim.launch(covered_top, g.cells, [f.types, up_axis, up_sign, ghost, self.top])
-        sim.launch(count_covered_empty, g.cells, [f.types, self.top, up_axis, up_sign, ghost, self.counter])
         self.last_voids = 0
-        if int(self.counter.numpy()[0]) > 0:  # the one scalar read: some EMPTY cell is covered
-            voids = self.find_voids()
-            if voids is not None:
-                self._fill_voids(*voids)
+        voids = self.search.find(f.types)
+        if voids is not None:
+            self._fill_voids(*voids)
         if self.clear_holes:
             sim.launch(clear_holes, g.cells, [f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
                                               sim.two_phase, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass,
                                               f.gas_volume, f.gas_pv, f.gas_kv])
-
-    def find_voids(self):
-        """The void cells and their region labels (grid.closed_empty_cells' result), with the cell
-        types read on the host, or None when there is none. The device marks the EMPTY cells that are
-        open air by position, carries that along lines of EMPTY cells (SWEEP_ROUNDS passes over the
-        axes) and counts the EMPTY cells left: one more scalar read, and usually that is all (the air
-        under a falling block is reached along its rows). Only when some are left does the host read
-        the types and search those cells' regions."""
-        sim, g, f = self.sim, self.sim.grid, self.sim.fields
-        up_axis, up_sign = sim.up
-        sim.launch(mark_open_air, g.cells, [f.types, self.top, up_axis, up_sign, wp.vec3i(*g.ghost), self.reached])
-        for _ in range(SWEEP_ROUNDS):
-            for a in range(g.dim):
-                lines = list(g.cells)
-                lines[a] = 1
-                sim.launch(sweep_open_air, tuple(lines), [f.types, a, self.reached])
-        self.counter.zero_()
-        sim.launch(count_unreached_empty, g.cells, [f.types, self.reached, self.counter])
-        if int(self.counter.numpy()[0]) == 0:
-            return None
-        types = f.types.numpy().copy()  # the justified host read (only on steps with unreached EMPTY cells)
-        cells, labels = unreached_regions(types, self.reached.numpy())
-        return (types, cells, labels) if len(cells) else None
 
     def _fill_voids(self, types, cells, labels):
         """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones stay

@@ -225,13 +225,14 @@ def test_a_splash_leaves_no_voids_and_its_trapped_air_becomes_bubbles(tmp_path):
     assert (before > 0).sum() >= 6 and before.sum() >= 3 * voids.sum()  # measured: 12 steps, 54 cell-steps
 
 
-def _void_search(types, ghost, up, dim):
+def _void_search(types, ghost, up, dim, region=None):
     """VoidSearch.find (the covered cells' box, the device sweeps in it, the host on what they left) on
     a cell-type array: the void cells and their labels."""
     from warp_mpm_bubbles.core.voids import VoidSearch
 
     launch = lambda kernel, d, inputs: wp.launch(kernel, dim=d, inputs=inputs, device="cpu")  # noqa: E731
-    found = VoidSearch(types.shape, ghost, up, dim, "cpu", launch).find(wp.array(types, dtype=wp.int32, device="cpu"))
+    found = VoidSearch(types.shape, ghost, up, dim, "cpu", launch).find(wp.array(types, dtype=wp.int32, device="cpu"),
+                                                                        region)
     return (np.zeros((0, 3), int), np.zeros(0, int)) if found is None else found[1:]
 
 
@@ -268,3 +269,7 @@ def test_the_void_search_finds_exactly_the_voids_of_the_rule():
     assert len(cells) == 0
     types[7:11, 11, 7:11] = EMPTY  # a pocket inside the block: a void
     assert len(_void_search(types, (1, 1, 1), (1, 1), 3)[0]) == 16
+    # searched in the grid stages' box (the block's cells and a margin): the same, though the air
+    # below the box is covered too
+    cells, labels = _void_search(types, (1, 1, 1), (1, 1), 3, region=((3, 7, 3), (15, 17, 15)))
+    assert len(cells) == 16 and len(set(labels)) == 1

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .lines import make_lines
+
 wp.set_module_options({"enable_backward": False})
 
 BOX_MARGIN = 4  # cells around the particles' cells: 3 needed (docstring), 1 spare
@@ -70,6 +72,10 @@ class ActiveRegion:
         self.box = box
         self.lo = wp.vec3i(*box[0])
         self.cells = tuple(h - l for l, h in zip(*box))  # noqa: E741
+        dim = 2 if self.shape[2] == 1 else 3
+        self.cell_lines = make_lines(*box, dim, self.device)  # (Lines, launch dims): the box's cells
+        self.face_lines = [make_lines(box[0], tuple(h + (a == b) * (h > l) for b, (l, h) in enumerate(zip(*box))),
+                                      dim, self.device) for a in range(3)]  # and the faces normal to each axis
 
     def faces(self, axis: int) -> tuple[int, int, int]:
         """Launch dims over the faces normal to `axis` of the box's cells (one more along axis)."""

@@ -116,6 +116,7 @@ class Simulation:
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
         self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
+        self.whole_grid = ActiveRegion(g, self.device, enabled=False)  # the launches of a splat outside the step
         self._seed()
 
     def _init_geometry(self):
@@ -211,8 +212,8 @@ class Simulation:
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
             self._sort_if_due()
-            self.particles_to_grid()
             self.region.update(self.particles)  # one read: the box the grid stages cover
+            self.particles_to_grid(self.region)
             self._run("after_p2g", dt)  # gas sums
         with self.timer("grid"):
             self._grid_velocity_and_cells(dt)
@@ -304,42 +305,49 @@ class Simulation:
         self.particles.sort_by_cell(self.geometry, self.grid.cells, self.launch)
         self._sorted_at = self.stats.steps
 
-    def particles_to_grid(self):
-        """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
-        f, p = self.fields, self.particles
+    def particles_to_grid(self, region: ActiveRegion | None = None):
+        """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts.
+        region: a box holding every particle's stencil (this step's ActiveRegion), or the whole grid."""
+        f, p, r = self.fields, self.particles, region or self.whole_grid
         for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
         self.launch(P2G[self.grid.dim], p.count,
                     [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite])
         for a in range(3):
-            self.launch(split_pairs, f.mom[a].shape, [f.face_pairs[a], f.mom[a], f.face_mass[a]])
-        self.launch(split_pairs, self.grid.cells, [f.cell_pairs, f.liq_mass, f.liq_volume])
+            box, dims = r.face_lines[a]
+            self.launch(split_pairs, dims, [f.face_pairs[a], f.mom[a], f.face_mass[a], box])
+        box, dims = r.cell_lines
+        self.launch(split_pairs, dims, [f.cell_pairs, f.liq_mass, f.liq_volume, box])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch(gk.momentum_to_velocity, r.faces(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a], r.lo])
+            box, dims = r.face_lines[a]
+            self.launch(gk.momentum_to_velocity, dims, [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a], box])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
-        self.launch(gk.classify_cells, r.cells,
+        box, dims = r.cell_lines
+        self.launch(gk.classify_cells, dims,
                     [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
-                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, r.lo])
+                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, box])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
         for a in g.axes:
-            self.launch(gk.zero_solid_faces, r.faces(a), [f.types, a, f.vel[a], r.lo])
-            self.launch(gk.face_inverse_density, r.faces(a),
+            box, dims = r.face_lines[a]
+            self.launch(gk.zero_solid_faces, dims, [f.types, a, f.vel[a], box])
+            self.launch(gk.face_inverse_density, dims,
                         [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume, self.two_phase,
-                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a], r.lo])
+                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a], box])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        self.launch(gk.pressure_diagonal_and_rhs, r.cells,
+        box, dims = r.cell_lines
+        self.launch(gk.pressure_diagonal_and_rhs, dims,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                      self.two_phase, self.interface, g.dx, dt, g.dim,
                      gk.volume_relaxation_rate(self.scene.solver.volume_relaxation_time, dt),
-                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, r.lo])
+                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, box])
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
@@ -359,19 +367,21 @@ class Simulation:
         )
         self.stats.record(info)
         for a in g.axes:
-            self.launch(gk.subtract_pressure_gradient, r.faces(a),
-                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], r.lo])
+            box, dims = r.face_lines[a]
+            self.launch(gk.subtract_pressure_gradient, dims,
+                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], box])
 
     def extend(self, vel, valid):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
         then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
+            box, dims = r.face_lines[a]
             for _ in range(EXTRAPOLATION_LAYERS):
-                self.launch(gk.extrapolate_velocity, r.faces(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], r.lo])
+                self.launch(gk.extrapolate_velocity, dims, [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], box])
                 vel[a], f.vel_tmp[a] = f.vel_tmp[a], vel[a]
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
-            self.launch(gk.enforce_walls, r.faces(a), [f.types, a, vel[a], r.lo])
+            self.launch(gk.enforce_walls, dims, [f.types, a, vel[a], box])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
 

@@ -10,6 +10,7 @@ import warp as wp
 
 from .geometry import GridGeometry
 from .grid import FLUID, PHASE_GAS, PHASE_LIQUID
+from .lines import Lines, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})
 
@@ -358,12 +359,17 @@ def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: i
 
 
 @wp.kernel(enable_backward=False)
-def split_pairs(pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float)):
-    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read."""
-    i, j, k = wp.tid()
-    q = pairs[i, j, k]
-    first[i, j, k] = q[0]
-    second[i, j, k] = q[1]
+def split_pairs(pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float),
+                box: Lines):
+    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read,
+    over a box of them (core/lines.py)."""
+    ti, tj, tk = wp.tid()
+    first_cell = line_first(box, ti, tj, tk)
+    for s in range(first_cell[box.axis], line_end(box, first_cell)):
+        c = on_line(first_cell, box.axis, s)
+        q = pairs[c[0], c[1], c[2]]
+        first[c[0], c[1], c[2]] = q[0]
+        second[c[0], c[1], c[2]] = q[1]
 
 
 def _p2g_kernel(dim: int):

@@ -43,6 +43,7 @@ import warp as wp
 
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
 from .grid_kernels import cell_type_at
+from .lines import Lines, line_end, line_first, make_lines, on_line
 
 wp.set_module_options({"enable_backward": False})
 
@@ -54,49 +55,64 @@ VOID_FILL = wp.constant(1.0e-6)  # rest-volume fraction written into a void with
 
 
 @wp.kernel
-def covered_top(types: wp.array3d(dtype=wp.int32), up_axis: int, up_sign: int, ghost: wp.vec3i,
+def covered_top(box: Lines, types: wp.array3d(dtype=wp.int32), up_axis: int, up_sign: int, ghost: wp.vec3i,
                 top: wp.array3d(dtype=wp.int32)):
-    """Per column along gravity, the height of the highest interior cell that is not EMPTY (-1: none)."""
-    i, j, k = wp.tid()
-    c = wp.vec3i(i, j, k)
-    for a in range(3):
-        if c[a] < ghost[a] or c[a] >= types.shape[a] - ghost[a]:
-            return
-    if types[i, j, k] == EMPTY:
-        return
-    h = c[up_axis]
-    if up_sign < 0:
-        h = types.shape[up_axis] - 1 - h
-    col = c
-    col[up_axis] = 0
-    wp.atomic_max(top, col[0], col[1], col[2], h)
+    """Per column along gravity, the height of the highest interior cell of the box that is not EMPTY
+    (-1: none)."""
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        if is_interior(types, ghost, c) and types[c[0], c[1], c[2]] != EMPTY:
+            col = c
+            col[up_axis] = 0
+            wp.atomic_max(top, col[0], col[1], col[2], height(types, up_axis, up_sign, c))
 
 
 @wp.kernel
-def count_covered_empty(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
-                        up_sign: int, ghost: wp.vec3i, covered: wp.array(dtype=wp.int32)):
-    """EMPTY interior cells below a fluid or solid cell of their column: the only ones that can be voids
-    (with gravity; up_axis < 0 counts every EMPTY interior cell). covered: their count, then the lowest
-    and highest index of them on each axis (the box the search below needs)."""
-    i, j, k = wp.tid()
-    c = wp.vec3i(i, j, k)
+def count_covered_empty(box: Lines, types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32),
+                        up_axis: int, up_sign: int, ghost: wp.vec3i, covered: wp.array(dtype=wp.int32)):
+    """EMPTY interior cells of the box below a fluid or solid cell of their column: the only ones that
+    can be voids (with gravity; up_axis < 0 counts every EMPTY interior cell). covered: their count,
+    then the lowest and highest index of them on each axis (the box the search below needs)."""
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        if is_interior(types, ghost, c) and types[c[0], c[1], c[2]] == EMPTY:
+            if is_covered(types, top, up_axis, up_sign, c):
+                wp.atomic_add(covered, 0, 1)
+                for a in range(3):
+                    wp.atomic_min(covered, 1 + a, c[a])
+                    wp.atomic_max(covered, 4 + a, c[a])
+
+
+@wp.func
+def is_interior(types: wp.array3d(dtype=wp.int32), ghost: wp.vec3i, c: wp.vec3i):
     for a in range(3):
         if c[a] < ghost[a] or c[a] >= types.shape[a] - ghost[a]:
-            return
-    if types[i, j, k] != EMPTY:
-        return
-    if up_axis >= 0:
-        h = c[up_axis]
-        if up_sign < 0:
-            h = types.shape[up_axis] - 1 - h
-        col = c
-        col[up_axis] = 0
-        if h > top[col[0], col[1], col[2]]:
-            return
-    wp.atomic_add(covered, 0, 1)
-    for a in range(3):
-        wp.atomic_min(covered, 1 + a, c[a])
-        wp.atomic_max(covered, 4 + a, c[a])
+            return False
+    return True
+
+
+@wp.func
+def height(types: wp.array3d(dtype=wp.int32), up_axis: int, up_sign: int, c: wp.vec3i):
+    """Cell c's index along gravity, counted upwards."""
+    h = c[up_axis]
+    if up_sign < 0:
+        h = types.shape[up_axis] - 1 - h
+    return h
+
+
+@wp.func
+def is_covered(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int, up_sign: int,
+               c: wp.vec3i):
+    """A fluid or solid cell lies above c in its column (without gravity: every cell counts as covered)."""
+    if up_axis < 0:
+        return True
+    col = c
+    col[up_axis] = 0
+    return height(types, up_axis, up_sign, c) <= top[col[0], col[1], col[2]]
 
 
 @wp.kernel
@@ -129,7 +145,7 @@ def fill_voids(is_void: wp.array3d(dtype=wp.int32), rho_liquid: float, cell_volu
 
 
 @wp.kernel
-def clear_holes(count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), dim: int,
+def clear_holes(box: Lines, count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), dim: int,
                 rho_liquid: float, cell_volume: float, two_phase: int, phase: wp.array3d(dtype=wp.int32),
                 liq_mass: wp.array3d(dtype=float), liq_volume: wp.array3d(dtype=float),
                 gas_mass: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
@@ -139,53 +155,61 @@ def clear_holes(count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.in
     becomes a liquid cell holding a trace (VOID_FILL) of liquid, so its full volume deficit counts
     and the pressure closes it from whichever phase is around (a gap the gas leaves under a rising
     bubble would otherwise read as gas that is not there, and stay)."""
-    i, j, k = wp.tid()
-    if types[i, j, k] != FLUID or count[i, j, k] != 0:
-        return
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if types[i, j, k] == FLUID and count[i, j, k] == 0 and not beside_empty(types, dim, c):
+            phase[i, j, k] = PHASE_LIQUID
+            liq_volume[i, j, k] = VOID_FILL * cell_volume
+            liq_mass[i, j, k] = rho_liquid * VOID_FILL * cell_volume
+            if two_phase != 0:
+                gas_mass[i, j, k] = 0.0
+                gas_volume[i, j, k] = 0.0
+                gas_pv[i, j, k] = 0.0
+                gas_kv[i, j, k] = 0.0
+
+
+@wp.func
+def beside_empty(types: wp.array3d(dtype=wp.int32), dim: int, c: wp.vec3i):
     for a in range(dim):
         for s in range(2):
-            n = wp.vec3i(i, j, k)
+            n = c
             n[a] = n[a] + 2 * s - 1
             if cell_type_at(types, n) == EMPTY:  # an open wall's ghost cell can be fluid: stay in the array
-                return
-    phase[i, j, k] = PHASE_LIQUID
-    liq_volume[i, j, k] = VOID_FILL * cell_volume
-    liq_mass[i, j, k] = rho_liquid * VOID_FILL * cell_volume
-    if two_phase != 0:
-        gas_mass[i, j, k] = 0.0
-        gas_volume[i, j, k] = 0.0
-        gas_pv[i, j, k] = 0.0
-        gas_kv[i, j, k] = 0.0
+                return True
+    return False
 
 
 @wp.kernel
-def mark_open_air(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
+def mark_open_air(box: Lines, types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
                   up_sign: int, ghost: wp.vec3i, reached: wp.array3d(dtype=wp.int32)):
-    """1 on the EMPTY cells that are open air by position (grid.open_air_seeds: ghost cells, the top
-    layer; without gravity the outer layer) and, with gravity, on those with nothing but EMPTY cells
-    above them in their column (that column reaches the top layer); 0 elsewhere. Over the box from lo."""
+    """1 on the EMPTY cells of the box that are open air by position, 0 on the others."""
     ti, tj, tk = wp.tid()
-    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
-    reached[i, j, k] = 0
-    if types[i, j, k] != EMPTY:
-        return
-    c = wp.vec3i(i, j, k)
-    for a in range(3):
-        if c[a] < ghost[a] or c[a] >= types.shape[a] - ghost[a]:
-            reached[i, j, k] = 1
-            return
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        reached[c[0], c[1], c[2]] = 0
+        if types[c[0], c[1], c[2]] == EMPTY:
+            if open_by_position(types, top, up_axis, up_sign, ghost, c):
+                reached[c[0], c[1], c[2]] = 1
+
+
+@wp.func
+def open_by_position(types: wp.array3d(dtype=wp.int32), top: wp.array3d(dtype=wp.int32), up_axis: int,
+                     up_sign: int, ghost: wp.vec3i, c: wp.vec3i):
+    """An EMPTY cell that is open air without a search (grid.open_air_seeds: a ghost cell, the top
+    layer; without gravity the outer layer), or with nothing but EMPTY cells above it in its column
+    (which reaches the top layer)."""
+    if not is_interior(types, ghost, c):
+        return True
     if up_axis >= 0:
-        h = c[up_axis]
-        if up_sign < 0:
-            h = types.shape[up_axis] - 1 - h
-        col = c
-        col[up_axis] = 0
-        if h > top[col[0], col[1], col[2]]:
-            reached[i, j, k] = 1
-        return
+        return not is_covered(types, top, up_axis, up_sign, c)
     for a in range(3):
         if ghost[a] > 0 and (c[a] == ghost[a] or c[a] == types.shape[a] - ghost[a] - 1):
-            reached[i, j, k] = 1
+            return True
+    return False
 
 
 @wp.func
@@ -220,12 +244,14 @@ def sweep_open_air(lo: wp.vec3i, hi: wp.vec3i, types: wp.array3d(dtype=wp.int32)
 
 
 @wp.kernel
-def count_unreached_empty(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32),
+def count_unreached_empty(box: Lines, types: wp.array3d(dtype=wp.int32), reached: wp.array3d(dtype=wp.int32),
                           counter: wp.array(dtype=wp.int32)):
     ti, tj, tk = wp.tid()
-    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
-    if types[i, j, k] == EMPTY and reached[i, j, k] == 0:
-        wp.atomic_add(counter, 0, 1)
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        if types[c[0], c[1], c[2]] == EMPTY and reached[c[0], c[1], c[2]] == 0:
+            wp.atomic_add(counter, 0, 1)
 
 
 def unreached_regions(types: np.ndarray, reached: np.ndarray, lo) -> tuple[np.ndarray, np.ndarray]:
@@ -255,6 +281,7 @@ class VoidSearch:
 
     def __init__(self, cells, ghost, up, dim: int, device, launch):
         self.cells, self.ghost, self.up, self.dim, self.launch = tuple(cells), tuple(ghost), up, dim, launch
+        self.device = device
         column = list(cells)
         if up[0] >= 0:
             column[up[0]] = 1
@@ -265,8 +292,10 @@ class VoidSearch:
         self.counter = wp.zeros(1, dtype=wp.int32, device=device)
         self.reached = wp.zeros(cells, dtype=wp.int32, device=device)  # EMPTY cells known to be open air
 
-    def find(self, types):
+    def find(self, types, region=None):
         """(types on the host, void cells, their region labels), or None when there is no void.
+        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid stages' box), or
+        None for the whole grid.
 
         1. Count the covered EMPTY cells (below a fluid or solid cell of their column; without gravity
            every EMPTY interior cell) and their box: one small read, and a calm scene stops here.
@@ -276,30 +305,40 @@ class VoidSearch:
            that is all (the air under a falling block is reached along its rows).
         3. Only when some are left, read the types and label those cells' regions on the host."""
         (up_axis, up_sign), ghost = self.up, wp.vec3i(*self.ghost)
+        lo, hi = region or ((0, 0, 0), self.cells)
         wp.copy(self.covered, self.covered_reset)
-        if up_axis >= 0:
+        if up_axis >= 0:  # columns: only the region's hold a fluid or solid cell; below it they are covered
             self.top.fill_(-1)
-            self.launch(covered_top, self.cells, [types, up_axis, up_sign, ghost, self.top])
-        self.launch(count_covered_empty, self.cells, [types, self.top, up_axis, up_sign, ghost, self.covered])
+            self._launch(covered_top, lo, hi, [types, up_axis, up_sign, ghost, self.top])
+            lo, hi = list(lo), list(hi)
+            lo[up_axis], hi[up_axis] = 0, self.cells[up_axis]
+        else:
+            lo, hi = (0, 0, 0), self.cells
+        self._launch(count_covered_empty, lo, hi, [types, self.top, up_axis, up_sign, ghost, self.covered])
         covered = self.covered.numpy()
         if covered[0] == 0:
             return None
         lo, hi = np.maximum(covered[1:4] - 1, 0), np.minimum(covered[4:7] + 2, self.cells)
-        box, start, end = tuple(int(h - l) for l, h in zip(lo, hi)), wp.vec3i(*lo), wp.vec3i(*hi)
-        self.launch(mark_open_air, box, [start, types, self.top, up_axis, up_sign, ghost, self.reached])
+        box, start, end = tuple(int(h - l) for l, h in zip(lo, hi)), wp.vec3i(*lo), wp.vec3i(*hi)  # noqa: E741
+        self._launch(mark_open_air, lo, hi, [types, self.top, up_axis, up_sign, ghost, self.reached])
         for _ in range(SWEEP_ROUNDS):
             for a in range(self.dim):
                 lines = list(box)
                 lines[a] = 1
                 self.launch(sweep_open_air, tuple(lines), [start, end, types, a, self.reached])
         self.counter.zero_()
-        self.launch(count_unreached_empty, box, [start, types, self.reached, self.counter])
+        self._launch(count_unreached_empty, lo, hi, [types, self.reached, self.counter])
         if int(self.counter.numpy()[0]) == 0:
             return None
         host = types.numpy().copy()  # the justified host read (only on steps with unreached EMPTY cells)
         inside = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
         cells, labels = unreached_regions(host[inside], self.reached.numpy()[inside], lo)
         return (host, cells, labels) if len(cells) else None
+
+    def _launch(self, kernel, lo, hi, inputs):
+        """A launch over the box [lo, hi), a line of cells a thread (core/lines.py)."""
+        box, dims = make_lines(lo, hi, self.dim, self.device)
+        self.launch(kernel, dims, [box, *inputs])
 
 
 class VoidPass:
@@ -330,11 +369,12 @@ class VoidPass:
     def apply(self, dt: float):
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
         self.last_voids = 0
-        voids = self.search.find(f.types)
+        voids = self.search.find(f.types, sim.region.box)
         if voids is not None:
             self._fill_voids(*voids)
         if self.clear_holes:
-            sim.launch(clear_holes, g.cells, [f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
+            box, dims = sim.region.cell_lines
+            sim.launch(clear_holes, dims, [box, f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
                                               sim.two_phase, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass,
                                               f.gas_volume, f.gas_pv, f.gas_kv])
 

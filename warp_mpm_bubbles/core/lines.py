@@ -62,3 +62,19 @@ def make_lines(lo, hi, dim: int, device) -> tuple[Lines, tuple[int, int, int]]:
     dims = list(extent)
     dims[box.axis] = (n + box.length - 1) // box.length
     return box, tuple(dims)
+
+
+def split_lines(box: Lines, dims, parts: int) -> list[tuple[Lines, tuple[int, int, int]]]:
+    """box as `parts` slabs along axis 0 (never the axis threads walk), each with its launch dims; a
+    kernel that writes only the cells it walks runs on the slabs at once with the box's result."""
+    n = dims[0]
+    parts = max(1, min(parts, n))
+    out = []
+    for q in range(parts):
+        a, b = n * q // parts, n * (q + 1) // parts
+        slab = Lines()
+        slab.lo = wp.vec3i(box.lo[0] + a, box.lo[1], box.lo[2])
+        slab.hi = wp.vec3i(box.lo[0] + b, box.hi[1], box.hi[2])
+        slab.axis, slab.length = box.axis, box.length
+        out.append((slab, (b - a, dims[1], dims[2])))
+    return out

@@ -53,7 +53,9 @@ import warp as wp
 
 from .grid import EMPTY, FLUID
 from .grid_kernels import at, unit
-from .lines import Lines, line_end, line_first, make_lines, on_line
+from .lines import Lines, line_end, line_first, make_lines, on_line, split_lines
+from . import threads
+from .threads import Parallel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -233,16 +235,17 @@ def coarse_row(F: Level, C: Level, cc: wp.vec3i, laplacian_scale: float):
 
 
 @wp.kernel
-def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
-    """One colour of a red-black Gauss-Seidel sweep on A x = b over the box: the cells of that colour
-    (parity of i + j + k, as on the whole grid) of each thread's line (core/lines.py)."""
+def smooth(L: Level, walk: Lines, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
+    """One colour of a red-black Gauss-Seidel sweep on A x = b over `walk` (the box, or a slab of it):
+    the cells of that colour (parity of i + j + k, as on the whole grid) of each thread's line
+    (core/lines.py). The colour's cells depend only on the other colour's, so slabs run at once."""
     if L.done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(L.box, ti, tj, tk)
-    axis = L.box.axis
+    first = line_first(walk, ti, tj, tk)
+    axis = walk.axis
     parity = (first[0] + first[1] + first[2] + color) % 2
-    for s in range(first[axis] + parity, line_end(L.box, first), 2):
+    for s in range(first[axis] + parity, line_end(walk, first), 2):
         c = on_line(first, axis, s)
         i, j, k = c[0], c[1], c[2]
         if L.types[i, j, k] == FLUID:
@@ -253,19 +256,20 @@ def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), col
 
 @wp.kernel
 def restrict_residual(
-    F: Level, C: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+    F: Level, C: Level, walk: Lines, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
     b_coarse: wp.array3d(dtype=float), x_coarse: wp.array3d(dtype=float),
 ):
-    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0 (over C's box)."""
+    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0 (over `walk`: C's box,
+    or a slab of it)."""
     if C.done[0] != 0:
         return
     nz = 1
     if F.dim == 3:
         nz = 2
     ti, tj, tk = wp.tid()
-    first = line_first(C.box, ti, tj, tk)
-    for line_s in range(first[C.box.axis], line_end(C.box, first)):
-        cc = on_line(first, C.box.axis, line_s)
+    first = line_first(walk, ti, tj, tk)
+    for line_s in range(first[walk.axis], line_end(walk, first)):
+        cc = on_line(first, walk.axis, line_s)
         s = float(0.0)
         for ox in range(2):
             for oy in range(2):
@@ -278,13 +282,14 @@ def restrict_residual(
 
 
 @wp.kernel
-def prolongate(F: Level, x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+def prolongate(F: Level, walk: Lines, x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+    """x += P x_coarse over `walk` (F's box, or a slab of it)."""
     if F.done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(F.box, ti, tj, tk)
-    for s in range(first[F.box.axis], line_end(F.box, first)):
-        c = on_line(first, F.box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         if F.types[i, j, k] == FLUID:
             x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]
@@ -393,8 +398,9 @@ class MultigridPreconditioner:
     """z = M^-1 r by one V-cycle; call build(system, box) once per solve before apply()."""
 
     def __init__(self, shape, dim: int, dx: float, device, *, sweeps: int = SMOOTHING_SWEEPS,
-                 laplacian_scale: float = COARSE_LAPLACIAN_SCALE):
+                 laplacian_scale: float = COARSE_LAPLACIAN_SCALE, parallel: Parallel | None = None):
         self.dim, self.device = dim, device
+        self.parallel = parallel or Parallel(1)
         self.inv_dx2 = 1.0 / (dx * dx)
         self.sweeps, self.laplacian_scale = sweeps, laplacian_scale
         self.shapes = level_shapes(shape, dim)
@@ -420,9 +426,6 @@ class MultigridPreconditioner:
     def _launch(self, kernel, shape, inputs):
         wp.launch(kernel, shape, inputs=inputs, device=self.device)
 
-    def _smooth(self, lvl, b, x, color):
-        self._launch(smooth, self.dims[lvl], [self.levels[lvl], b, x, color])
-
     def build(self, system, box=None, done=None):
         """Wrap the fine system, build every coarse level from the one above, factor the coarsest.
 
@@ -446,21 +449,49 @@ class MultigridPreconditioner:
             self._launch(build_coarse, self.dims[lvl],
                          [self.levels[lvl - 1], self.levels[lvl], self.laplacian_scale])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
+        self._cycles = {}  # the V-cycle's recorded launches, per (r, z): the levels changed
 
     def apply(self, r, z):
         """z = M^-1 r (one V-cycle from z = 0 on the box); r and z are fine-level cell arrays, z is 0
-        outside the box."""
-        b, x, last = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1
+        outside the box. The cycle's launches are recorded once per build (Warp packs a launch's
+        arguments in Python: 25-30 us a launch, about 10 ms a step at the peer block) and replayed."""
+        key = (r.ptr, z.ptr)
+        if key not in self._cycles:
+            self._cycles[key] = self._record_cycle(r, z)
         z.zero_()
+        for stage in self._cycles[key]:
+            if len(stage) == 1:
+                stage[0].launch()
+            else:
+                self.parallel.run([part.launch for part in stage])
+
+    def _record_cycle(self, r, z):
+        """The V-cycle as stages of recorded launches: a stage's launches (slabs of one kernel's box,
+        on a level large enough to split; core/threads.py) run at once, stages one after another."""
+        b, x, last, L = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1, self.levels
+        stages = []
+
+        def smoothing(lvl, colors):
+            for _ in range(self.sweeps):
+                for color in colors:
+                    stages.append(self._parts(smooth, lvl, lambda walk: [L[lvl], walk, b[lvl], x[lvl], color]))
+
         for lvl in range(last):
-            for _ in range(self.sweeps):
-                for color in (0, 1):
-                    self._smooth(lvl, b[lvl], x[lvl], color)
-            self._launch(restrict_residual, self.dims[lvl + 1],
-                         [self.levels[lvl], self.levels[lvl + 1], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
-        self._launch(solve_coarsest, 1, [self.levels[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])
+            smoothing(lvl, (0, 1))
+            stages.append(self._parts(restrict_residual, lvl + 1,
+                                      lambda walk: [L[lvl], L[lvl + 1], walk, b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]]))
+        stages.append([self._record(solve_coarsest, 1, [L[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])])
         for lvl in range(last - 1, -1, -1):
-            self._launch(prolongate, self.dims[lvl], [self.levels[lvl], x[lvl + 1], x[lvl]])
-            for _ in range(self.sweeps):
-                for color in (1, 0):
-                    self._smooth(lvl, b[lvl], x[lvl], color)
+            stages.append(self._parts(prolongate, lvl, lambda walk: [L[lvl], walk, x[lvl + 1], x[lvl]]))
+            smoothing(lvl, (1, 0))
+        return stages
+
+    def _record(self, kernel, dims, inputs):
+        return wp.launch(kernel, dims, inputs=inputs, device=self.device, record_cmd=True)
+
+    def _parts(self, kernel, lvl, inputs):
+        """Recorded launches of `kernel` over level lvl's box, split into one slab per thread along
+        axis 0 when the box has threads.SPLIT_CELLS cells or more (each launch costs a thread hand-off)."""
+        walk, dims = self.levels[lvl].box, self.dims[lvl]
+        parts = self.parallel.threads if math.prod(dims) * walk.length >= threads.SPLIT_CELLS else 1
+        return [self._record(kernel, d, inputs(w)) for w, d in split_lines(walk, dims, parts)]

@@ -358,7 +358,7 @@ class PressureSolver:
     """
 
     def __init__(self, shape, dim: int, dx: float, device, *, active_box: bool = True,
-                 check_every: int = CHECK_EVERY):
+                 check_every: int = CHECK_EVERY, parallel=None):
         self.dim, self.dx = dim, dx
         self.inv_dx2 = 1.0 / (dx * dx)
         self.device = device
@@ -372,6 +372,7 @@ class PressureSolver:
         self.info = wp.zeros(3, dtype=wp.float64, device=device)
         self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
         self.multigrid = None  # built on first use
+        self.parallel = parallel  # the CPU's threads for the V-cycle's large launches (core/threads.py)
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
         self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
@@ -442,7 +443,8 @@ class PressureSolver:
         self._launch(zero_if_trivial, [box, sums, x])
         if mode == MULTIGRID:
             if self.multigrid is None:
-                self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device)
+                self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device,
+                                                         parallel=self.parallel)
             self.multigrid.build(system, self.box, done)
         apply = lambda p, out, row: self._launch(  # noqa: E731
             apply_operator, [box, done, types, diag, *inv_rho, self.inv_dx2, self.dim, p, out, rows, row])

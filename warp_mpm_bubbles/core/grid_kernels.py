@@ -145,12 +145,14 @@ def classify_phases(
     gas_volume: wp.array3d(dtype=float),
     interface: int,
     phase: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Which fluid cells are gas. Baseline (the published rule): any gas particle in the cell.
     Sharp: the gas's splatted volume exceeds the liquid's, i.e. the cell centre is on the gas side
     of the interface that the particles describe.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     ph = PHASE_LIQUID
     if types[i, j, k] == FLUID:
         if interface == INTERFACE_BASELINE:
@@ -529,6 +531,7 @@ def keep_phase_faces(
     keep: int,
     valid_in: wp.array3d(dtype=wp.int32),
     valid_out: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
 
@@ -538,6 +541,7 @@ def keep_phase_faces(
     velocity both phases share.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     valid_out[i, j, k] = 0

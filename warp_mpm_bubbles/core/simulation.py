@@ -53,7 +53,8 @@ TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
 # Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
 # only per-step argument (colliders pass the time: not these; unknown stages: not these).
 GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
-# Hooks at which stages write grid arrays (anywhere): with any of them the grid stages cover the whole grid.
+# Hooks at which stages write grid arrays: unless every stage there is box-aware (Stage.grid_box), the grid
+# stages cover the whole grid, since its kernels may write anywhere.
 GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
@@ -115,7 +116,8 @@ class Simulation:
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
-        self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
+        self.region = ActiveRegion(g, self.device,
+                                   enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
 
     def _init_geometry(self):

@@ -55,9 +55,11 @@ def liquid_ceiling(
     up_axis: int,
     up_sign: int,
     ceiling: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Per column along gravity, the height of the highest liquid cell (-1: none)."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
         return
     c = wp.vec3i(i, j, k)
@@ -150,9 +152,11 @@ def gas_cell_expansion(
     dim: int,
     slot: int,
     out: wp.array(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """out[slot]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
         return
     div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
@@ -175,6 +179,7 @@ class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
+    grid_box = True  # its grid kernels cover sim.region; outside it the gas arrays hold no gas
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)
@@ -240,10 +245,10 @@ class GasStage(Stage):
 
     def _write_report(self, sim):
         # The next step's limit from this step's end state, carried by the step's one read-back.
-        g, f = sim.grid, sim.fields
+        g, f, r = sim.grid, sim.fields, sim.region
         self._measure_gauge(sim, f.max_speed)
-        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim, 3,
-                                                 f.max_speed])
+        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim, 3,
+                                                 f.max_speed, r.lo])
 
     def _read_report(self, sim, report):
         sim.host_state["gas_gauge"][0] = float(report[2])
@@ -265,16 +270,16 @@ class GasStage(Stage):
                     f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
 
     def on_cells(self, sim, dt: float):
-        g, f = sim.grid, sim.fields
-        sim.launch(gk.classify_phases, g.cells,
-                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells])
+        f, r = sim.fields, sim.region
+        sim.launch(gk.classify_phases, r.cells,
+                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells, r.lo])
         up_axis, up_sign = sim.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
-            f.ceiling.fill_(-1)
-            sim.launch(liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
+            f.ceiling.fill_(-1)  # (no liquid cell lies outside the box)
+            sim.launch(liquid_ceiling, r.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling, r.lo])
 
     def before_extend(self, sim, dt: float):
-        f = sim.fields
+        f, r = sim.fields, sim.region
         if f.gas_vel is None:
             return
         # The gas reads the shared projected field; the liquid keeps only its own faces, and the
@@ -282,8 +287,8 @@ class GasStage(Stage):
         for a in sim.grid.axes:
             wp.copy(f.gas_vel[a], f.vel[a])
             wp.copy(f.gas_valid[a], f.valid[a])
-            sim.launch(gk.keep_phase_faces, sim.grid.face_shape(a),
-                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a]])
+            sim.launch(gk.keep_phase_faces, r.faces(a),
+                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a], r.lo])
         sim.extend(f.gas_vel, f.gas_valid)
 
     def before_g2p(self, sim, dt: float):

@@ -364,10 +364,11 @@ class Simulation:
             self.launch(gk.subtract_pressure_gradient, r.faces(a),
                         [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], r.lo])
 
-    def extend(self, vel, valid):
+    def extend(self, vel, valid, box=None):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
-        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
-        g, f, r = self.grid, self.fields, self.region
+        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given.
+        `box`: the cells to cover (an active_box.LaunchBox inside the region), else the region."""
+        g, f, r = self.grid, self.fields, box or self.region
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
                 self.launch(gk.extrapolate_velocity, r.faces(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], r.lo])

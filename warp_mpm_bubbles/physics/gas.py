@@ -289,7 +289,11 @@ class GasStage(Stage):
             wp.copy(f.gas_valid[a], f.valid[a])
             sim.launch(gk.keep_phase_faces, r.faces(a),
                        [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a], r.lo])
-        sim.extend(f.gas_vel, f.gas_valid)
+        # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
+        # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
+        # (active_box.ActiveRegion.gas), whose margin covers what they read; outside it the field
+        # keeps the projected values, which nothing reads.
+        sim.extend(f.gas_vel, f.gas_valid, r.gas)
 
     def before_g2p(self, sim, dt: float):
         if not self.sharp:

@@ -33,11 +33,10 @@ def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, l
     level[i, j, k] = wp.clamp(2.0 * liq_volume[i, j, k] * inv_cell_vol - 1.0, -1.0, 1.0)
 
 
-@wp.func(inline=True)
+@wp.func
 def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, centre: float):
     """The level set at c; a solid cell (or one beyond the arrays) mirrors `centre`, the value at the
-    cell that asks: a 90 degree contact. Inlined, no helper calls: the smoothing's and the curvature's
-    stencils run it 19-27 times per cell (as a call passing the arrays it cost 6x the kernel's time)."""
+    cell that asks: a 90 degree contact."""
     v = centre
     if c[0] >= 0 and c[1] >= 0 and c[2] >= 0:
         if c[0] < types.shape[0] and c[1] < types.shape[1] and c[2] < types.shape[2]:
@@ -53,8 +52,8 @@ def smooth_level_set(
 ):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
-    capillary currents. The 3^dim block in x, y, z order (constant loops, which Warp unrolls); the
-    weights sum to 4^dim."""
+    capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
+    over block_offset(q) cost 6x the time); the weights sum to 4^dim."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
     value = level[i, j, k]
@@ -348,12 +347,12 @@ class TensionStage(Stage):
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
-        self.count.zero_()
-        self.leaving.zero_()
-        self.first.fill_(2**31 - 1)
+        self.first.fill_(2**31 - 1)  # no particle is a cell's first: without holding, none is held back
         films = [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.geometry, dt]
-        sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
-        if self.hold_films:
+        if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
+            self.count.zero_()
+            self.leaving.zero_()
+            sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
             sim.launch(film_departures, p.count, [*films, p.x, p.phase, p.active, self.leaving, self.first])
         sim.launch(retract_gas_films, p.count,
                    [*films, self.count, self.leaving, self.first, p.x, p.phase, p.active])

@@ -93,6 +93,7 @@ class ActiveRegion(LaunchBox):
         self.bounds = wp.zeros(12, dtype=wp.int32, device=device)
         self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
         self.host_reads = 0
+        self.particle_count = 0  # the particles the boxes were taken from (later ones may lie outside)
         self.gas = LaunchBox()
         self._set(self.previous)
         self.gas._set(self.previous)
@@ -115,6 +116,7 @@ class ActiveRegion(LaunchBox):
         """This step's box from the particles (after p2g), united with the previous step's."""
         if not self.enabled:
             return
+        self.particle_count = particles.count
         wp.launch(reset_bounds, 12, inputs=[self.bounds], device=self.device)
         if particles.count:
             wp.launch(particle_cell_bounds, particles.count, device=self.device,

@@ -529,11 +529,14 @@ def keep_phase_faces(
     phase: wp.array3d(dtype=wp.int32),
     axis: int,
     keep: int,
-    valid_in: wp.array3d(dtype=wp.int32),
-    valid_out: wp.array3d(dtype=wp.int32),
+    vel: wp.array3d(dtype=float),
+    valid: wp.array3d(dtype=wp.int32),
+    shared_vel: wp.array3d(dtype=float),
+    shared_valid: wp.array3d(dtype=wp.int32),
     lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
+    The projected field as it was goes to shared_vel, shared_valid (the other phase's copy).
 
     The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
     from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
@@ -542,11 +545,14 @@ def keep_phase_faces(
     """
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    trusted = valid[i, j, k]
+    shared_vel[i, j, k] = vel[i, j, k]
+    shared_valid[i, j, k] = trusted
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
-    valid_out[i, j, k] = 0
+    valid[i, j, k] = 0
     if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
-        valid_out[i, j, k] = valid_in[i, j, k]
+        valid[i, j, k] = trusted
 
 
 @wp.kernel

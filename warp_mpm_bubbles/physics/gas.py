@@ -282,18 +282,18 @@ class GasStage(Stage):
         f, r = sim.fields, sim.region
         if f.gas_vel is None:
             return
-        # The gas reads the shared projected field; the liquid keeps only its own faces, and the
-        # core extends that across the interface.
+        # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
+        # and the core extends that across the interface. (Outside the box both hold the empty state.)
         for a in sim.grid.axes:
-            wp.copy(f.gas_vel[a], f.vel[a])
-            wp.copy(f.gas_valid[a], f.valid[a])
             sim.launch(gk.keep_phase_faces, r.faces(a),
-                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a], r.lo])
+                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
+                        r.lo])
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
         # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
         # (active_box.ActiveRegion.gas), whose margin covers what they read; outside it the field
-        # keeps the projected values, which nothing reads.
-        sim.extend(f.gas_vel, f.gas_valid, r.gas)
+        # keeps the projected values, which nothing reads. Gas seeded after the box was read (trapped
+        # air, core/voids.py) may lie outside it: then the grid box (tests/test_active_region.py).
+        sim.extend(f.gas_vel, f.gas_valid, r.gas if sim.particles.count == r.particle_count else r)
 
     def before_g2p(self, sim, dt: float):
         if not self.sharp:

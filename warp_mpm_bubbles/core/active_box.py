@@ -16,8 +16,10 @@ whole-grid launches (`Simulation` decides), since their kernels may write anywhe
 stage is box-aware (`Stage.grid_box`: gas, surface tension).
 
 The same read brings the box of the resolved gas's particles (`ActiveRegion.gas`, with the same
-margin): the gas's own velocity field is read only by gas particles and gas cells, so the gas
-extends it on that box alone (physics/gas.py).
+margin, no union): the gas's own velocity field and its cells' volume change are read only by gas
+particles and gas cells, so the gas computes them on that box alone (physics/gas.py). Outside it
+they keep stale values, which nothing reads, except on a step where the void pass seeded trapped air
+after the read: then `gas_box` is the whole grid.
 """
 
 from __future__ import annotations
@@ -94,9 +96,10 @@ class ActiveRegion(LaunchBox):
         self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
         self.host_reads = 0
         self.particle_count = 0  # the particles the boxes were taken from (later ones may lie outside)
-        self.gas = LaunchBox()
+        self.gas, self.whole = LaunchBox(), LaunchBox()
         self._set(self.previous)
         self.gas._set(self.previous)
+        self.whole._set(self.previous)
 
     def whole_grid(self):
         """From now on the whole grid (a captured CUDA graph cannot read the box on the host)."""
@@ -104,6 +107,11 @@ class ActiveRegion(LaunchBox):
         self.previous = ((0, 0, 0), self.shape)
         self._set(self.previous)
         self.gas._set(self.previous)
+
+    def gas_box(self, particles) -> LaunchBox:
+        """The gas's box; the whole grid if particles were added since the boxes were read (trapped air
+        that the void pass seeds may lie outside both boxes, where older gas left its values)."""
+        return self.gas if particles.count == self.particle_count else self.whole
 
     def _grown(self, b):
         """The box of cells from bounds b (smallest, largest cell) with the margin, clamped; empty if none."""

@@ -290,10 +290,9 @@ class GasStage(Stage):
                         r.lo])
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
         # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
-        # (active_box.ActiveRegion.gas), whose margin covers what they read; outside it the field
-        # keeps the projected values, which nothing reads. Gas seeded after the box was read (trapped
-        # air, core/voids.py) may lie outside it: then the grid box (tests/test_active_region.py).
-        sim.extend(f.gas_vel, f.gas_valid, r.gas if sim.particles.count == r.particle_count else r)
+        # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field
+        # keeps the projected values, which nothing reads.
+        sim.extend(f.gas_vel, f.gas_valid, r.gas_box(sim.particles))
 
     def before_g2p(self, sim, dt: float):
         if not self.sharp:
@@ -302,8 +301,9 @@ class GasStage(Stage):
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
-        sim.launch(gas_volume_rate, g.cells,
-                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
+        box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
+        sim.launch(gas_volume_rate, box.cells,
+                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
         sim.launch(update_gas_J, p.count,
                    [p.x, p.phase, p.active, f.gas_rate, sim.geometry, dt, p.J])
 

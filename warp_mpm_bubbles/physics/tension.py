@@ -13,7 +13,7 @@ import math
 import warp as wp
 
 from ..core.geometry import GridGeometry
-from ..core.grid import INTERFACE_SHARP, PHASE_GAS
+from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
 from ..core.grid_kernels import (
     block_offset, block_size, cell_centre, cell_of, is_liquid_cell, is_phase_cell, is_solid, unit,
@@ -33,16 +33,22 @@ def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, l
     level[i, j, k] = wp.clamp(2.0 * liq_volume[i, j, k] * inv_cell_vol - 1.0, -1.0, 1.0)
 
 
-@wp.func
-def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, centre: float):
-    """The level set at c; a solid cell (or one beyond the arrays) mirrors `centre`, the value at the
-    cell that asks: a 90 degree contact."""
+@wp.func(inline=True)
+def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), x: int, y: int, z: int,
+                   centre: float):
+    """The level set at cell (x, y, z); a solid cell (or one beyond the arrays) mirrors `centre`, the
+    value at the cell that asks: a 90 degree contact."""
     v = centre
-    if c[0] >= 0 and c[1] >= 0 and c[2] >= 0:
-        if c[0] < types.shape[0] and c[1] < types.shape[1] and c[2] < types.shape[2]:
-            if not is_solid(types[c[0], c[1], c[2]]):
-                v = level[c[0], c[1], c[2]]
+    if x >= 0 and y >= 0 and z >= 0 and x < types.shape[0] and y < types.shape[1] and z < types.shape[2]:
+        if not is_solid(types[x, y, z]):
+            v = level[x, y, z]
     return v
+
+
+@wp.func
+def inner_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, centre: float):
+    """mirrored_level for a cell c inside the arrays (is_solid: a type >= SOLID_FREE_SLIP)."""
+    return wp.where(is_solid(types[c[0], c[1], c[2]]), centre, level[c[0], c[1], c[2]])
 
 
 @wp.kernel
@@ -53,20 +59,29 @@ def smooth_level_set(
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
     capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
-    over block_offset(q) cost 6x the time); the weights sum to 4^dim."""
+    over block_offset(q) cost 6x the time); the weights sum to 4^dim. Only cells on the arrays' edge
+    check for neighbours outside them."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
     value = level[i, j, k]
     if is_solid(types[i, j, k]):
         out[i, j, k] = value
         return
+    edge = i == 0 or j == 0 or i == types.shape[0] - 1 or j == types.shape[1] - 1  # a neighbour is outside
+    if dim == 3 and (k == 0 or k == types.shape[2] - 1):
+        edge = True
     total = float(0.0)
     for a in range(-1, 2):
         for b in range(-1, 2):
             for c in range(-1, 2):
                 if dim == 3 or c == 0:
                     w = float((2 - wp.abs(a)) * (2 - wp.abs(b)) * (2 - wp.abs(c)))
-                    total += w * mirrored_level(level, types, wp.vec3i(i + a, j + b, k + c), value)
+                    v = value
+                    if edge:
+                        v = mirrored_level(level, types, i + a, j + b, k + c, value)
+                    else:  # inner_level written out: as a call in this unrolled loop it cost 1.5x the kernel
+                        v = wp.where(types[i + a, j + b, k + c] >= SOLID_FREE_SLIP, value, level[i + a, j + b, k + c])
+                    total += w * v
     weight = 64.0
     if dim == 2:
         weight = 32.0  # (the slab's block: z offset 0, weight factor 2)
@@ -103,20 +118,20 @@ def surface_curvature(
         return
     grad = wp.vec3(0.0)
     hess = wp.mat33(0.0)
-    for a in range(3):  # constant loops (unrolled); the axes past dim are skipped
+    for a in range(3):  # constant loops (unrolled); the axes past dim are skipped; no neighbour is outside
         if a < dim:
             ea = unit(a)
-            pp = mirrored_level(level, types, c + ea, p0)
-            pm = mirrored_level(level, types, c - ea, p0)
+            pp = inner_level(level, types, c + ea, p0)
+            pm = inner_level(level, types, c - ea, p0)
             grad[a] = (pp - pm) / (2.0 * dx)
             hess[a, a] = (pp - 2.0 * p0 + pm) / (dx * dx)
             for b in range(3):
                 if b > a and b < dim:
                     eb = unit(b)
-                    cross = (mirrored_level(level, types, c + ea + eb, p0)
-                             - mirrored_level(level, types, c + ea - eb, p0)
-                             - mirrored_level(level, types, c - ea + eb, p0)
-                             + mirrored_level(level, types, c - ea - eb, p0)) / (4.0 * dx * dx)
+                    cross = (inner_level(level, types, c + ea + eb, p0)
+                             - inner_level(level, types, c + ea - eb, p0)
+                             - inner_level(level, types, c - ea + eb, p0)
+                             + inner_level(level, types, c - ea - eb, p0)) / (4.0 * dx * dx)
                     hess[a, b] = cross
                     hess[b, a] = cross
     g2 = wp.dot(grad, grad)
@@ -166,7 +181,7 @@ def apply_surface_tension(
         cn = below
         orient = -1.0
     psi_l = level[cl[0], cl[1], cl[2]]  # (a liquid cell: not solid)
-    psi_n = mirrored_level(level, types, cn, psi_l)
+    psi_n = mirrored_level(level, types, cn[0], cn[1], cn[2], psi_l)
     theta = float(0.5)
     if psi_l - psi_n > 1.0e-6:
         theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)

@@ -524,38 +524,6 @@ def subtract_pressure_gradient(
 
 
 @wp.kernel
-def keep_phase_faces(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    axis: int,
-    keep: int,
-    vel: wp.array3d(dtype=float),
-    valid: wp.array3d(dtype=wp.int32),
-    shared_vel: wp.array3d(dtype=float),
-    shared_valid: wp.array3d(dtype=wp.int32),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
-):
-    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
-    The projected field as it was goes to shared_vel, shared_valid (the other phase's copy).
-
-    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
-    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
-    beside it across the interface. A face between a liquid and a gas cell keeps the normal
-    velocity both phases share.
-    """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    trusted = valid[i, j, k]
-    shared_vel[i, j, k] = vel[i, j, k]
-    shared_valid[i, j, k] = trusted
-    hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    valid[i, j, k] = 0
-    if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
-        valid[i, j, k] = trusted
-
-
-@wp.kernel
 def extrapolate_velocity(
     vel_in: wp.array3d(dtype=float),
     valid_in: wp.array3d(dtype=wp.int32),

@@ -119,6 +119,39 @@ def vent_exposed_gas(
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
 
 
+# ------------------------------------------------------------------------- the liquid's own field
+@wp.kernel
+def keep_phase_faces(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    axis: int,
+    keep: int,
+    vel: wp.array3d(dtype=float),
+    valid: wp.array3d(dtype=wp.int32),
+    shared_vel: wp.array3d(dtype=float),
+    shared_valid: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+):
+    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
+    The projected field as it was goes to shared_vel, shared_valid (the other phase's copy).
+
+    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
+    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
+    beside it across the interface. A face between a liquid and a gas cell keeps the normal
+    velocity both phases share.
+    """
+    i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    trusted = valid[i, j, k]
+    shared_vel[i, j, k] = vel[i, j, k]
+    shared_valid[i, j, k] = trusted
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    valid[i, j, k] = 0
+    if gk.is_phase_cell(types, phase, lo, keep) or gk.is_phase_cell(types, phase, hi, keep):
+        valid[i, j, k] = trusted
+
+
 # ------------------------------------------------------------------------------ the step limit
 GAS_EXPANSION_SHARE = 0.1  # the most a gas cell's volume may change in one step (relative)
 
@@ -285,7 +318,7 @@ class GasStage(Stage):
         # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
         # and the core extends that across the interface. (Outside the box both hold the empty state.)
         for a in sim.grid.axes:
-            sim.launch(gk.keep_phase_faces, r.faces(a),
+            sim.launch(keep_phase_faces, r.faces(a),
                        [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
                         r.lo])
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read

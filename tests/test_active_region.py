@@ -295,7 +295,8 @@ def bubble_scene(case):
               Sphere("air", center=centre, radius=size / 4, velocity=v)]
     domain = Domain(size=(1.0,) * dim, cell_size=1 / (40 if dim == 2 else 20), walls="free_slip")
     steps, dt = (14, 0.004) if dim == 2 else (10, 0.006)
-    return Scene(name=case, domain=domain, materials=materials, shapes=shapes, output=Output(path="unused.usdc")), steps, dt
+    scene = Scene(name=case, domain=domain, materials=materials, shapes=shapes, output=Output(path="unused.usdc"))
+    return scene, steps, dt
 
 
 @pytest.mark.parametrize("case", ["thrown_2d", "thrown_3d", "straddle_2d", "trapped_air_2d"])

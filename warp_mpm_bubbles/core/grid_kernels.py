@@ -187,12 +187,14 @@ def classify_phases(
     gas_volume: wp.array3d(dtype=float),
     interface: int,
     phase: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Which fluid cells are gas. Baseline (the published rule): any gas particle in the cell.
     Sharp: the gas's splatted volume exceeds the liquid's, i.e. the cell centre is on the gas side
     of the interface that the particles describe.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     ph = PHASE_LIQUID
     if types[i, j, k] == FLUID:
         if interface == INTERFACE_BASELINE:
@@ -650,30 +652,6 @@ def subtract_pressure_gradient_at(
     elif (is_solid(t_lo) and t_hi == FLUID) or (is_solid(t_hi) and t_lo == FLUID):
         ok = 1
     valid[i, j, k] = ok
-
-
-@wp.kernel
-def keep_phase_faces(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    axis: int,
-    keep: int,
-    valid_in: wp.array3d(dtype=wp.int32),
-    valid_out: wp.array3d(dtype=wp.int32),
-):
-    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
-
-    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
-    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
-    beside it across the interface. A face between a liquid and a gas cell keeps the normal
-    velocity both phases share.
-    """
-    i, j, k = wp.tid()
-    hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    valid_out[i, j, k] = 0
-    if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
-        valid_out[i, j, k] = valid_in[i, j, k]
 
 
 @wp.kernel

@@ -56,7 +56,8 @@ TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
 # Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
 # only per-step argument (colliders pass the time: not these; unknown stages: not these).
 GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
-# Hooks at which stages write grid arrays (anywhere): with any of them the grid stages cover the whole grid.
+# Hooks at which stages write grid arrays: unless every stage there is box-aware (Stage.grid_box), the grid
+# stages cover the whole grid, since its kernels may write anywhere.
 GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
@@ -120,8 +121,8 @@ class Simulation:
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
-        self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
-        self.whole_grid = ActiveRegion(g, self.device, enabled=False)  # the launches of a splat outside the step
+        self.region = ActiveRegion(g, self.device,
+                                   enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
 
     def _init_geometry(self):
@@ -315,7 +316,7 @@ class Simulation:
         region: a box holding every particle's stencil (this step's ActiveRegion), or the whole grid.
         On the CPU the splat runs as one part per thread, each owning a slab of the box's nodes along
         x (core/threads.py): the same sums, bit for bit, as one launch."""
-        f, p, r = self.fields, self.particles, region or self.whole_grid
+        f, p, r = self.fields, self.particles, region or self.region.whole
         for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
         args = [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs,
@@ -376,10 +377,11 @@ class Simulation:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
                               [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
 
-    def extend(self, vel, valid):
+    def extend(self, vel, valid, box=None):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
-        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
-        g, f, r = self.grid, self.fields, self.region
+        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given.
+        `box`: the cells to cover (an active_box.LaunchBox inside the region), else the region."""
+        g, f, r = self.grid, self.fields, box or self.region
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
                 self.launch_lines(gk.extrapolate_velocity, r.face_lines[a],

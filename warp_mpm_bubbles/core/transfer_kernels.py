@@ -153,6 +153,7 @@ def gas_volume_rate(
     dx: float,
     dim: int,
     rate: wp.array3d(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """The volume change per second that belongs to the gas in each cell, per unit gas volume.
 
@@ -162,6 +163,7 @@ def gas_volume_rate(
     nobody reads, and the gas's J lagged (tests/test_gas.py's collapse measured it).
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     rate[i, j, k] = 0.0
     vg = gas_volume[i, j, k]
     if types[i, j, k] != FLUID or vg <= 0.0:

@@ -112,6 +112,7 @@ class Simulation:
         self.fields = GridFields(g, self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
         self.speed_parts = wp.zeros(self.parallel.threads, dtype=float, device=self.device)
+        self._loaded: set = set()  # kernels launched once already (_launch_parts)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
@@ -421,10 +422,18 @@ class Simulation:
             self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in split_lines(box, dims, parts)])
 
     def _launch_parts(self, kernel, parts):
-        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads."""
+        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the
+        first time one after the other: the first launch compiles or loads the kernel's module, which
+        must happen once, on one thread)."""
         self.launches[kernel.key] += len(parts)
-        self.parallel.run([lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
-                           for d, inputs in parts])
+        calls = [lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
+                 for d, inputs in parts]
+        if kernel in self._loaded:
+            self.parallel.run(calls)
+        else:
+            for call in calls:
+                call()
+            self._loaded.add(kernel)
 
     # ---------------------------------------------------------------------------- time steps
     def dt_limits(self) -> dict[str, float]:

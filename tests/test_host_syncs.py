@@ -18,8 +18,9 @@ from test_subgrid import splash_scene
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
 # The step's own reads: the solve's cell counts with the non-finite count (3 ints), and the
-# read-back at its end, the fastest particle with entrainment's count and the gas's two step measures (4 floats).
-STEP_READS, STEP_ELEMENTS = 2, 7
+# read-back at its end, the fastest particle with entrainment's count, the gas's two step measures
+# and whether a cavity may exist (5 floats).
+STEP_READS, STEP_ELEMENTS = 2, 8
 
 
 def liquid_scene(tmp_path):

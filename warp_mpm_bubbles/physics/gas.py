@@ -27,7 +27,9 @@ from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.grid_kernels import cell_of, cell_type_at, unit
 from ..core.stage import Stage
-from ..core.transfer_kernels import gas_pressure, gas_volume_rate, p2g_gas, update_gas_J
+from ..core.transfer_kernels import (CELL_OFFSET, GAS_ADIABATIC, clamp_to_domain, gas_pressure, gas_volume_rate,
+                                     grid_coord, make_stencil, p2g_gas, update_gas_J)
+from .cavity import CAVITY_ENTER, CAVITY_GAS, Cavities
 
 wp.set_module_options({"enable_backward": False})
 
@@ -152,8 +154,57 @@ def keep_phase_faces(
         valid[i, j, k] = trusted
 
 
+# ------------------------------------------------------------------------------ pressure spread
+MAX_PRESSURE_SPREAD = 10.0  # a gas particle's pressure, at most this many times its cells' (absolute)
+SPREAD_GATE = MAX_PRESSURE_SPREAD - 1.0  # checked only while some gas is a cavity's or this far above ambient
+
+
+@wp.kernel
+def limit_gas_pressure_spread(
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    law: wp.array(dtype=wp.int32),
+    gamma: wp.array(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    gas_pv: wp.array3d(dtype=float),
+    p_atm: float,
+    spread: float,
+    geo: GridGeometry,
+    J: wp.array(dtype=float),
+):
+    """A gas particle's absolute pressure stays within `spread` times the highest of its cells'
+    (the pressure the solve sees: volume-weighted, so a particle crushed to no volume has no say in
+    it). A cell's volume change is shared by all its particles alike, so one already crushed (a
+    sliver's tail beside the liquid) was crushed again every step while its cell's pressure stayed
+    low, until its pressure, and with it the gas_expansion step, ran away (1e9 Pa, 1e-17 s, then
+    NaN, after a 0.5%-ambient cavity closed). Measured spread in the 0.2 p_inf collapse: 1.26."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS or law[p] == 0 or not wp.isfinite(x[p]):
+        return
+    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
+    s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
+    highest = float(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(s.nk):
+                vg = gas_volume[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+                if vg > 0.0:
+                    highest = wp.max(highest, p_atm + gas_pv[s.base[0] + i, s.base[1] + j, s.base[2] + k] / vg)
+    cap = spread * highest
+    if highest <= 0.0 or p_atm + gas_pressure(law[p], J[p], gamma[p], p_atm) <= cap:
+        return
+    if law[p] == GAS_ADIABATIC:
+        J[p] = wp.pow(p_atm / cap, 1.0 / gamma[p])
+    else:
+        J[p] = p_atm / cap
+
+
 # ------------------------------------------------------------------------------ the step limit
 GAS_EXPANSION_SHARE = 0.1  # the most a gas cell's volume may change in one step (relative)
+
+
+GAUGE_SLOT, RATE_SLOT, CAVITY_SLOT = 2, 3, 4  # the gas's slots of the step's read-back (core/state.py)
 
 
 @wp.kernel
@@ -163,15 +214,20 @@ def gas_step_measures(
     J: wp.array(dtype=float),
     law: wp.array(dtype=wp.int32),
     gamma: wp.array(dtype=float),
+    cavity_gas: wp.array(dtype=wp.int32),
     p_atm: float,
-    slot: int,
+    cavity_enter: float,
     out: wp.array(dtype=float),
 ):
-    """out[slot]: the largest |gauge pressure| of the gas particles."""
+    """out[GAUGE_SLOT]: the largest |gauge pressure| of the gas particles; out[CAVITY_SLOT] = 1 if
+    any is a cavity's or below the cavity's entry pressure (else no cell can be a cavity's next step)."""
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    wp.atomic_max(out, slot, wp.abs(gas_pressure(law[p], J[p], gamma[p], p_atm)))
+    gauge = gas_pressure(law[p], J[p], gamma[p], p_atm)
+    wp.atomic_max(out, GAUGE_SLOT, wp.abs(gauge))
+    if cavity_gas[p] != 0 or p_atm + gauge < cavity_enter:
+        out[CAVITY_SLOT] = 1.0
 
 
 @wp.kernel
@@ -181,16 +237,18 @@ def gas_cell_expansion(
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
+    cavity: wp.array3d(dtype=wp.int32),
     dx: float,
     dim: int,
     slot: int,
     out: wp.array(dtype=float),
     lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
-    """out[slot]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells."""
+    """out[slot]: the largest |div u| (1/s, the gas's relative volume change rate) over gas cells,
+    cavities' not counted (physics/cavity.py: a near vacuum's volume is the room it is left)."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
+    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS or cavity[i, j, k] == CAVITY_GAS:
         return
     div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
     wp.atomic_max(out, slot, wp.abs(div) / dx)
@@ -226,6 +284,7 @@ class GasStage(Stage):
             column[up_axis] = 1
         f.ceiling = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
         self.sharp = sim.interface == INTERFACE_SHARP
+        self.cavities = Cavities(sim)  # near-vacuum gas: a pressure boundary (physics/cavity.py)
         if self.sharp and solver.liquid_velocity == "own":
             f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
@@ -236,6 +295,7 @@ class GasStage(Stage):
         # fastest relative volume change (1/s).
         sim.host_state["gas_gauge"] = np.full(1, np.nan)
         sim.host_state["gas_expansion_rate"] = np.zeros(1)
+        sim.host_state["gas_cavity"] = np.ones(1)  # 1: a cavity may exist this step (physics/cavity.py)
         sim.report_writers.append(self._write_report)
         sim.report_readers.append(self._read_report)
         mats = list(sim.scene.materials.values())
@@ -256,7 +316,9 @@ class GasStage(Stage):
             return self._limit[1]
         gauge = float(sim.host_state["gas_gauge"][0])
         if math.isnan(gauge):  # the first step (or an older checkpoint): measured once here
-            gauge = float(sim.read_host(self._measure_gauge(sim, wp.zeros(4, dtype=float, device=sim.device)))[2])
+            first = sim.read_host(self._measure_gauge(sim, wp.zeros(CAVITY_SLOT + 1, dtype=float, device=sim.device)))
+            gauge = float(first[GAUGE_SLOT])
+            sim.host_state["gas_cavity"][0] = float(first[CAVITY_SLOT])
         cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
         # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
         limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
@@ -272,20 +334,22 @@ class GasStage(Stage):
 
     def _measure_gauge(self, sim, out):
         p = sim.particles
-        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
-                                                 sim.scene.domain.ambient_pressure, 2, out])
+        ambient = sim.scene.domain.ambient_pressure
+        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma, p.cavity_gas, ambient,
+                                                 CAVITY_ENTER * ambient, out])
         return out
 
     def _write_report(self, sim):
         # The next step's limit from this step's end state, carried by the step's one read-back.
         g, f, r = sim.grid, sim.fields, sim.region
         self._measure_gauge(sim, f.max_speed)
-        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), g.dx, g.dim, 3,
-                                                 f.max_speed, r.lo])
+        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.cavity, g.dx, g.dim,
+                                                 RATE_SLOT, f.max_speed, r.lo])
 
     def _read_report(self, sim, report):
-        sim.host_state["gas_gauge"][0] = float(report[2])
-        sim.host_state["gas_expansion_rate"][0] = float(report[3])
+        sim.host_state["gas_gauge"][0] = float(report[GAUGE_SLOT])
+        sim.host_state["gas_expansion_rate"][0] = float(report[RATE_SLOT])
+        sim.host_state["gas_cavity"][0] = float(report[CAVITY_SLOT])
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -301,11 +365,13 @@ class GasStage(Stage):
                    [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
                     sim.scene.domain.ambient_pressure, sim.geometry,
                     f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
+        self.cavities.after_p2g(sim)
 
     def on_cells(self, sim, dt: float):
         f, r = sim.fields, sim.region
         sim.launch(gk.classify_phases, r.cells,
                    [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells, r.lo])
+        self.cavities.on_cells(sim)
         up_axis, up_sign = sim.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
             f.ceiling.fill_(-1)  # (no liquid cell lies outside the box)
@@ -313,6 +379,7 @@ class GasStage(Stage):
 
     def before_extend(self, sim, dt: float):
         f, r = sim.fields, sim.region
+        self.cavities.before_extend(sim)
         if f.gas_vel is None:
             return
         # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
@@ -339,6 +406,12 @@ class GasStage(Stage):
                    [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
         sim.launch(update_gas_J, p.count,
                    [p.x, p.phase, p.active, f.gas_rate, sim.geometry, dt, p.J])
+        self.cavities.update_J(sim, dt)
+        ambient = sim.scene.domain.ambient_pressure
+        if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
+            sim.launch(limit_gas_pressure_spread, p.count,
+                       [p.x, p.phase, p.active, p.gas_law, p.gas_gamma, f.gas_volume, f.gas_pv, ambient,
+                        MAX_PRESSURE_SPREAD, sim.geometry, p.J])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles

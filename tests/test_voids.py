@@ -104,10 +104,18 @@ def test_the_bubble_rises_and_keeps_its_gas(tank):
     assert 0.40 * L < y - y0 < 0.47 * L, (cells, y - y0)
 
 
-def test_without_the_void_pass_the_same_tank_has_voids(tmp_path):
-    # The test above can fail: the same run with the pass switched off grows EMPTY cells inside.
+def test_without_the_void_pass_and_the_correction_the_same_tank_has_voids(tmp_path):
+    # The test above can fail: the same run with the pass and the volume correction switched off
+    # grows EMPTY cells inside (measured 10). With the pass off but the correction on, the tank stays
+    # free of them: liquid and incompressible gas are one medium for the correction, which closes
+    # the interface's under-filled cells before they empty (grid_kernels.cell_excess; the gas's own
+    # over-fill rule before it left 4 void cells).
     sim = Simulation(filled_tank(24, tmp_path), "cpu")
     voids, empty, _ = rise(sim, 0.1, with_pass=False)
+    assert voids.max() == 0 and empty.max() == 0
+    scene = filled_tank(24, tmp_path)
+    scene.solver.volume_relaxation_time = 0.0
+    voids, empty, _ = rise(Simulation(scene, "cpu"), 0.1, with_pass=False)
     assert voids.max() > 0 and empty.max() > 0
 
 

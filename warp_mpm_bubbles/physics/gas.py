@@ -300,7 +300,7 @@ class GasStage(Stage):
         sim.launch(gas_volume_rate, g.cells,
                    [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
         sim.launch(update_gas_J, p.count,
-                   [p.x, p.phase, p.active, f.gas_rate, sim.geometry, dt, p.J])
+                   [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles

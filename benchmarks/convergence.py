@@ -46,13 +46,11 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-# This checkout's package, not an installed one (a script's sys.path starts at benchmarks/): the
-# report names this checkout's commit.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this checkout's package, also when another is installed
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere  # noqa: E402
-from warp_mpm_bubbles.core.simulation import Simulation  # noqa: E402
-from warp_mpm_bubbles.core.timing import describe_device  # noqa: E402
-from warp_mpm_bubbles.diagnostics import field_shape, gas_fraction, void_cells  # noqa: E402
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.timing import describe_device
+from warp_mpm_bubbles.diagnostics import field_shape, gas_fraction, void_cells
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"

@@ -55,9 +55,11 @@ def liquid_ceiling(
     up_axis: int,
     up_sign: int,
     ceiling: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Per column along gravity, the height of the highest liquid cell (-1: none)."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
         return
     c = wp.vec3i(i, j, k)
@@ -117,6 +119,39 @@ def vent_exposed_gas(
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
 
 
+# ------------------------------------------------------------------------- the liquid's own field
+@wp.kernel
+def keep_phase_faces(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    axis: int,
+    keep: int,
+    vel: wp.array3d(dtype=float),
+    valid: wp.array3d(dtype=wp.int32),
+    shared_vel: wp.array3d(dtype=float),
+    shared_valid: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+):
+    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
+    The projected field as it was goes to shared_vel, shared_valid (the other phase's copy).
+
+    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
+    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
+    beside it across the interface. A face between a liquid and a gas cell keeps the normal
+    velocity both phases share.
+    """
+    i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    trusted = valid[i, j, k]
+    shared_vel[i, j, k] = vel[i, j, k]
+    shared_valid[i, j, k] = trusted
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    valid[i, j, k] = 0
+    if gk.is_phase_cell(types, phase, lo, keep) or gk.is_phase_cell(types, phase, hi, keep):
+        valid[i, j, k] = trusted
+
+
 # ------------------------------------------------------------------------------ the step limit
 GAS_EXPANSION_SHARE = 0.1  # the most a gas cell's volume may change in one step (relative)
 
@@ -151,12 +186,14 @@ def gas_cell_expansion(
     dim: int,
     slot: int,
     out: wp.array(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """out[slot]: the largest |div u - d| (1/s, the gas's relative volume change rate) over gas cells,
     d the divergence the volume correction asked of the cell (target_div), which is not the gas's
     (gas_volume_rate leaves it out of J too): an incompressible gas's cells move only by d, and
     counted as expansion it set 515 of 520 steps of a rising bubble (issue #12's 3D tank)."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
         return
     div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
@@ -179,6 +216,7 @@ class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
+    grid_box = True  # its grid kernels cover sim.region; outside it the gas arrays hold no gas
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)
@@ -244,10 +282,10 @@ class GasStage(Stage):
 
     def _write_report(self, sim):
         # The next step's limit from this step's end state, carried by the step's one read-back.
-        g, f = sim.grid, sim.fields
+        g, f, r = sim.grid, sim.fields, sim.region
         self._measure_gauge(sim, f.max_speed)
-        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.target_div, g.dx,
-                                                 g.dim, 3, f.max_speed])
+        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.target_div, g.dx,
+                                                 g.dim, 3, f.max_speed, r.lo])
 
     def _read_report(self, sim, report):
         sim.host_state["gas_gauge"][0] = float(report[2])
@@ -269,26 +307,29 @@ class GasStage(Stage):
                     f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
 
     def on_cells(self, sim, dt: float):
-        g, f = sim.grid, sim.fields
-        sim.launch(gk.classify_phases, g.cells,
-                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells])
+        f, r = sim.fields, sim.region
+        sim.launch(gk.classify_phases, r.cells,
+                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells, r.lo])
         up_axis, up_sign = sim.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
-            f.ceiling.fill_(-1)
-            sim.launch(liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
+            f.ceiling.fill_(-1)  # (no liquid cell lies outside the box)
+            sim.launch(liquid_ceiling, r.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling, r.lo])
 
     def before_extend(self, sim, dt: float):
-        f = sim.fields
+        f, r = sim.fields, sim.region
         if f.gas_vel is None:
             return
-        # The gas reads the shared projected field; the liquid keeps only its own faces, and the
-        # core extends that across the interface.
+        # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
+        # and the core extends that across the interface. (Outside the box both hold the empty state.)
         for a in sim.grid.axes:
-            wp.copy(f.gas_vel[a], f.vel[a])
-            wp.copy(f.gas_valid[a], f.valid[a])
-            sim.launch(gk.keep_phase_faces, sim.grid.face_shape(a),
-                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a]])
-        sim.extend(f.gas_vel, f.gas_valid)
+            sim.launch(keep_phase_faces, r.faces(a),
+                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
+                        r.lo])
+        # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
+        # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
+        # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field
+        # keeps the projected values, which nothing reads.
+        sim.extend(f.gas_vel, f.gas_valid, r.gas_box(sim.particles))
 
     def before_g2p(self, sim, dt: float):
         if not self.sharp:
@@ -297,8 +338,9 @@ class GasStage(Stage):
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
-        sim.launch(gas_volume_rate, g.cells,
-                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
+        box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
+        sim.launch(gas_volume_rate, box.cells,
+                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
         sim.launch(update_gas_J, p.count,
                    [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
 

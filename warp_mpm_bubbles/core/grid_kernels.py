@@ -399,11 +399,12 @@ def zero_solid_faces_at(
 
 
 @wp.func
-def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i, dim: int,
-                    two_phase: int):
+def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+                    gas_kv: wp.array3d(dtype=float), c: wp.vec3i, dim: int, two_phase: int):
     """(pinned, enclosed) of fluid cell c: pinned = 1 if a face neighbour is empty (Dirichlet p = 0);
-    enclosed = 1 if every face neighbour is liquid (no surface, wall or gas nearby to lower its
-    rest-volume fraction legitimately)."""
+    enclosed = 1 if every face neighbour is liquid or incompressible gas (gas_kv = 0): no surface,
+    wall or compressible gas nearby to lower its rest-volume fraction legitimately (compressible gas
+    expands into a gap by itself; an incompressible one cannot, like the liquid)."""
     pinned = int(0)
     enclosed = int(1)
     for a in range(dim):
@@ -415,7 +416,8 @@ def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=w
             if t != FLUID:
                 enclosed = 0
             elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
-                enclosed = 0
+                if gas_kv[n[0], n[1], n[2]] > 0.0:
+                    enclosed = 0
     return wp.vec2i(pinned, enclosed)
 
 
@@ -470,16 +472,21 @@ def is_hole(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=fl
 
 @wp.func
 def cell_excess(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                phase: wp.array3d(dtype=wp.int32), two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float,
+                gas_kv: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float,
                 dx: float):
-    """The volume excess the correction acts on in a cell it governs (volume_excess)."""
+    """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
+    gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its total
+    fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the correction
+    governs only then). The gas's own over-fill alone spread a bubble to 1.16 of its particles'
+    volume (nothing closed its under-filled cells), the liquid's alone piled it to 0.37 (issue #12's
+    3D tank). Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
     held = liq_volume[c[0], c[1], c[2]]
     gas_here = float(0.0)
     if two_phase != 0:
         gas_here = gas_volume[c[0], c[1], c[2]]
-    if two_phase != 0 and phase[c[0], c[1], c[2]] == PHASE_GAS:  # sharp, incompressible gas: its own over-fill
-        held = gas_here  # (retracted films pile it into the bubble) spreads too; its J is fixed anyway
-        gas_here = 0.0
+        if gas_kv[c[0], c[1], c[2]] == 0.0:
+            held = held + gas_here
+            gas_here = 0.0
     return volume_excess(held, gas_here, enclosed, inv_dx2, dx)
 
 
@@ -568,7 +575,7 @@ def pressure_diagonal_and_rhs_at(
     inv_dx2 = 1.0 / (dx * dx)
     d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
     div = cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
-    sides = neighbour_kinds(types, phase, wp.vec3i(i, j, k), dim, two_phase)
+    sides = neighbour_kinds(types, phase, gas_kv, wp.vec3i(i, j, k), dim, two_phase)
     pinned = sides[0]
     enclosed = sides[1]
     if is_hole(liq_volume, gas_volume, two_phase, wp.vec3i(i, j, k), inv_dx2 / dx, pinned):
@@ -586,7 +593,7 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        target = volume_rate * cell_excess(liq_volume, gas_volume, phase, two_phase, wp.vec3i(i, j, k), enclosed,
+        target = volume_rate * cell_excess(liq_volume, gas_volume, gas_kv, two_phase, wp.vec3i(i, j, k), enclosed,
                                            inv_dx2, dx)  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take

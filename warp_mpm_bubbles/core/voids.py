@@ -29,11 +29,12 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact). One
    beside gas is the space the gas just left (a burst's vented cavity), not trapped air.
 
-Every step, on the device (`clear_holes`), in scenes without compressible gas: a fluid cell with no
-particle and no EMPTY neighbour (a gap a rising bubble leaves, a void made liquid above) holds
-nothing, whatever its neighbours' B-splines splat into it; it becomes a liquid cell with a trace of
-liquid and no gas, so its full deficit counts. With compressible gas the gas expands into such gaps
-itself, and closing them by the deficit broke a rising air bubble up (see VoidPass.__init__).
+Every step, on the device (`clear_holes`), in scenes without gas: a fluid cell with no particle and
+no EMPTY neighbour (a void made liquid above) holds nothing, whatever its neighbours' B-splines
+splat into it; it becomes a liquid cell with a trace of liquid, so its full deficit counts. With
+compressible gas the gas expands into such gaps itself, and closing them by the deficit broke a
+rising air bubble up; with incompressible gas the volume correction closes them by their own total
+fill, liquid and gas as one medium (see VoidPass.__init__).
 """
 
 from __future__ import annotations
@@ -354,12 +355,16 @@ class VoidPass:
         self.rho_liquid = max((m.density for m in liquids), default=1000.0)
         gases = [i for i, m in enumerate(sim.scene.materials.values()) if m.is_gas]
         self.gas_material = gases[0] if gases and sim.has_gas else None
-        # Holes are cleared only where no gas can expand into them: with compressible gas, clearing
-        # the holes a rising air bubble leaves drew its gas out into the wake (the largest bubble kept
-        # 22-41% of the gas after five diameters instead of 67-73%; tests/test_gas.py).
-        self.compressible = any(m.is_gas and m.eos != "incompressible" for m in sim.scene.materials.values()
-                                if sim.has_gas)
-        self.clear_holes = not self.compressible
+        # Holes are cleared only in scenes without gas. With compressible gas, clearing the holes a
+        # rising air bubble leaves drew its gas out into the wake (the largest bubble kept 22-41% of
+        # the gas after five diameters instead of 67-73%; tests/test_gas.py). With incompressible
+        # gas the correction closes a hole by its own fill, as one medium (grid_kernels.cell_excess):
+        # cleared to liquid, a hole counted its whole cell as missing on top of its neighbours' share
+        # of the same gap, and holes inside the bubble became liquid cells (issue #12, the 2D
+        # benchmark at 40 cells: velocity jitter 0.0045 cleared, 0.0031 not).
+        gas_kinds = [m for m in sim.scene.materials.values() if m.is_gas] if sim.has_gas else []
+        self.compressible = any(m.eos != "incompressible" for m in gas_kinds)
+        self.clear_holes = not gas_kinds
         if self.gas_material is not None:  # checkpointed with the rest of host_state
             sim.host_state.setdefault("gas_mass_trapped", np.zeros(1))
         self.last_voids = 0

@@ -190,10 +190,34 @@ def apply_surface_tension(
 
 
 @wp.func
+def level_at_point(level: wp.array3d(dtype=float), x: wp.vec3, origin: wp.vec3, dx: float, dim: int):
+    """The level set at point x, (bi/tri)linear between the cell centres around it."""
+    q = (x - origin) / dx - wp.vec3(0.5, 0.5, 0.5)
+    b = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+    f = q - wp.vec3(float(b[0]), float(b[1]), float(b[2]))
+    nk = 2
+    if dim == 2:  # the slab's one layer
+        nk = 1
+        b[2] = 0
+    total = float(0.0)
+    for i in range(2):
+        for j in range(2):
+            for k in range(nk):
+                c = wp.vec3i(wp.clamp(b[0] + i, 0, level.shape[0] - 1), wp.clamp(b[1] + j, 0, level.shape[1] - 1),
+                             wp.clamp(b[2] + k, 0, level.shape[2] - 1))
+                w = wp.where(i == 1, f[0], 1.0 - f[0]) * wp.where(j == 1, f[1], 1.0 - f[1])
+                if dim == 3:
+                    w = w * wp.where(k == 1, f[2], 1.0 - f[2])
+                total += w * level[c[0], c[1], c[2]]
+    return total
+
+
+@wp.func
 def film_target(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -203,12 +227,17 @@ def film_target(
     particle in a liquid cell with gas cells in its 3^d neighbourhood (a bubble's skirt or rim thinner
     than a cell) moves towards them (their gas-volume-weighted centre) at `capillary_speed`, the
     Taylor-Culick speed of a film one cell thick, sqrt(2 sigma / (rho_l dx)) (thinner films retract
-    faster), at most a quarter cell a step."""
+    faster), at most a quarter cell a step. Only gas on the liquid's side of the interface, where the
+    smoothed liquid level set the curvature reads is positive, is a film: gas on the bubble's side in
+    a cell the interface crosses is the resolved bubble (retracted, it piled into the bubble and left
+    the interface's cells under-filled, 0.92, with holes: issue #12)."""
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
     c = cell_of(xp, origin, dx)
     if not is_liquid_cell(types, phase_cells, c):
+        return xp
+    if level_at_point(level, xp, origin, dx, dim) <= 0.0:
         return xp
     pull = wp.vec3(0.0)
     for q in range(block_size(dim)):
@@ -248,6 +277,7 @@ def film_departures(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -263,7 +293,7 @@ def film_departures(
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
     c = cell_of(xp, geo.origin, geo.dx)
-    if other_cell(film_target(types, phase_cells, gas_volume, capillary_speed, geo, dt, xp), c, geo):
+    if other_cell(film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp), c, geo):
         wp.atomic_add(leaving, c[0], c[1], c[2], 1)
         wp.atomic_min(first, c[0], c[1], c[2], p)
 
@@ -273,6 +303,7 @@ def retract_gas_films(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -298,7 +329,7 @@ def retract_gas_films(
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
     dx = geo.dx
     c = cell_of(xp, geo.origin, dx)
-    target = film_target(types, phase_cells, gas_volume, capillary_speed, geo, dt, xp)
+    target = film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp)
     if other_cell(target, c, geo) and leaving[c[0], c[1], c[2]] >= count[c[0], c[1], c[2]]:
         if first[c[0], c[1], c[2]] == p:  # the cell's last particle: stays, at the side facing its bubble
             lo = cell_centre(c, geo.origin, dx) - wp.vec3(0.49 * dx)
@@ -325,6 +356,7 @@ class TensionStage(Stage):
         self.rho_liquid = max(m.density for m in liquids)
         self.rho_gas = max((m.density for m in materials if m.is_gas), default=0.0)
         self.curvature, self.level, self.level_tmp = (sim.fields.cells() for _ in range(3))
+        self.smoothed = self.level  # force() names the buffer its smoothing ends in
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
         # interface they retract into their bubble, at the Taylor-Culick speed of a one-cell film.
         self.retract_films = (sim.has_gas and sim.interface == INTERFACE_SHARP
@@ -356,6 +388,7 @@ class TensionStage(Stage):
             sim.launch(smooth_level_set, r.cells, [f.types, level, g.dim, smoothed, r.lo])
             level, smoothed = smoothed, level
         sim.launch(surface_curvature, r.cells, [f.types, level, g.dx, g.dim, self.curvature, r.lo])
+        self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
             sim.launch(apply_surface_tension, r.faces(a), [f.types, f.phase_cells, level, self.curvature,
                                                            f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a], r.lo])
@@ -363,7 +396,7 @@ class TensionStage(Stage):
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         self.first.fill_(2**31 - 1)  # no particle is a cell's first: without holding, none is held back
-        films = [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.geometry, dt]
+        films = [f.types, f.phase_cells, f.gas_volume, self.smoothed, self.film_speed, sim.geometry, dt]
         if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
             self.count.zero_()
             self.leaving.zero_()

@@ -117,3 +117,27 @@ def test_ordinary_gas_never_runs_the_cavity_kernels(tmp_path):
     assert {k: sim.launches[k] for k in CAVITY_KERNELS} == first
     assert not np.any(sim.fields.cavity.numpy())
     assert not np.any(sim.particles.numpy("cavity_gas"))
+
+
+def test_a_checkpoint_from_before_the_cavity_model_resumes(tmp_path):
+    """An older checkpoint has no per-particle cavity_gas: it loads with the field's fresh default (0),
+    as an older checkpoint's missing host_state does, and the run goes on (no KeyError)."""
+    from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
+
+    scene = Scene(domain=Domain(size=(0.04, 0.04), cell_size=0.04 / 16),
+                  materials={"water": Material("water"), "air": Material("air", kind="gas")},
+                  shapes=[Box("water", (0.0, 0.0), (0.04, 0.03)), Sphere("air", (0.02, 0.012), 0.005)],
+                  output=Output(path=str(tmp_path / "c.usdc")), name="old_checkpoint")
+    sim = Simulation(scene, "cpu")
+    for _ in range(2):
+        sim.step(sim.stable_dt())
+    path = tmp_path / "checkpoint.npz"
+    save_checkpoint(sim, path)
+    with np.load(path) as data:
+        old = {k: data[k] for k in data.files if k != "particle_cavity_gas"}
+    np.savez(path, **old)
+    resumed = Simulation(scene, "cpu")
+    load_checkpoint(resumed, path)
+    assert resumed.particles.numpy("cavity_gas").max() == 0
+    assert np.array_equal(resumed.particles_numpy()["positions"], sim.particles_numpy()["positions"])
+    resumed.step(resumed.stable_dt())

@@ -58,6 +58,8 @@ TENSION = "tests/test_tension.py"
 VISCOSITY = "tests/test_viscosity.py"
 STEP = "tests/test_time_step.py"
 WS = "tests/test_walls_and_sources.py"
+CAVITY_FILE = "tests/test_cavity.py"
+CAVITY = CAVITY_FILE + "::test_a_near_vacuum_cavity_collapses_on_the_cylindrical_rayleigh_time"
 TANK = WS + "::test_resting_tank_pressure_has_slope_rho_g_and_its_zero_at_the_surface"
 
 # (id, module it lives in today, exact old snippet, new snippet, tests). The table rows are
@@ -105,6 +107,11 @@ MUTATIONS = [
      "if two_phase == 0:  # liquid-only scenes never read the gas arrays\n        rho = 1.03 * ml / vl", [HYDROSTATIC, TANK]),
     ("rho_liquid_with_gas_x0.97", GK, "elif vl > 0.0:\n                rho = ml / vl",
      "elif vl > 0.0:\n                rho = 0.97 * ml / vl", [LAYERED]),
+    # --- near-vacuum cavities (physics/cavity.py): the collapse time, and the cavity's own rules
+    ("cavity_liquid_density_x0.97", GK, "elif vl > 0.0:\n                rho = ml / vl",
+     "elif vl > 0.0:\n                rho = 0.97 * ml / vl", [CAVITY]),
+    ("cavity_edge_keeps_compressibility", "physics/cavity.py", "    if cavity[i, j, k] == CAVITY_EDGE:\n        gas_kv[i, j, k] = 0.0",
+     "    if cavity[i, j, k] == CAVITY_EDGE:\n        gas_kv[i, j, k] = gas_kv[i, j, k]", [CAVITY_FILE]),
     ("free_surface_fraction_shift", GK, "theta = (phi_fluid - 0.5) / (phi_fluid - phi_empty)",
      "theta = (phi_fluid - 0.4) / (phi_fluid - phi_empty)", [HYDROSTATIC, TANK]),
     ("divergence_z_x0.95", GK, "div += vel_w[i, j, k + 1] - vel_w[i, j, k]\n    return div",

@@ -170,3 +170,13 @@ def test_effect_examples_write_water_air_foam_and_their_colliders(tmp_path, exam
     assert sorted(read_frames(out)["frames"]) == [0, 1]
     effects = next(line for line in run.stderr.splitlines() if line.strip().startswith("effects:"))
     assert "foam" in effects and "subgrid_bubbles" in effects and "colliders" in effects
+
+
+def test_a_bad_thread_count_is_refused_before_any_output(tmp_path, capsys, monkeypatch):
+    scene = small_scene(tmp_path)
+    for value, says in (("two", "not a whole number"), ("0", "set it to 1 or more")):
+        monkeypatch.setenv("WARP_MPM_CPU_THREADS", value)
+        assert main(["run", str(scene), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "WARP_MPM_CPU_THREADS" in err and says in err and "Traceback" not in err
+        assert not list(tmp_path.glob("*.usd*"))

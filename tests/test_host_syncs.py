@@ -18,8 +18,9 @@ from test_subgrid import splash_scene
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
 # The step's own reads: the solve's cell counts with the non-finite count (3 ints), and the
-# read-back at its end, the fastest particle with entrainment's count and the gas's two step measures (4 floats).
-STEP_READS, STEP_ELEMENTS = 2, 7
+# read-back at its end, the fastest particle with entrainment's count, the gas's two step measures
+# and whether a cavity may exist (5 floats).
+STEP_READS, STEP_ELEMENTS = 2, 8
 
 
 def liquid_scene(tmp_path):
@@ -65,16 +66,35 @@ def test_liquid_only_step_reads_two_small_arrays_besides_the_solver(tmp_path):
     for reads, iterations, solves in counted_steps(sim, 6):
         assert solves == 1
         other = {m: n for m, n in reads.by_module.items() if m not in SOLVER_MODULES}
-        # liquid only: the grid stages' box (core/active_box.py, 6 ints) is read once per step too, and
-        # the void pass's count of covered EMPTY cells (core/voids.py, 1 int), then the cell types on a
-        # step that has some
-        assert 1 <= other.pop("core.voids") <= 2
+        # liquid only: the grid stages' box (core/active_box.py, 12 ints with the gas's) is read once per step too, and
+        # the void search's count of covered EMPTY cells and their box (core/voids.py, 7 ints); on a step
+        # that has some, the count of those the device sweeps did not reach (1 int), and then, only if
+        # any is left, the cell types and the sweeps' marks
+        assert 1 <= other.pop("core.voids") <= 4
         assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
         assert reads.elements["core.simulation"] == STEP_ELEMENTS
-        assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} - {
-            ("core.voids", "_fill_voids")} == {
+        assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} == {
             ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step"), ("core.active_box", "update"),
-            ("core.voids", "apply")}
+            ("core.voids", "find")}
+        assert_solver_within_bound(reads, iterations, solves)
+
+
+def test_gas_and_tension_step_reads_the_boxes_once(tmp_path):
+    # Gas and surface tension keep the grid stages' box (Stage.grid_box): the box and the gas's box
+    # (core/active_box.py, 12 ints) are one read per step, as for liquid only; the stages read nothing.
+    scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24),
+                  materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
+                  shapes=[Box("water", (0.0, 0.0), (0.1, 0.06)), Sphere("air", center=(0.05, 0.025), radius=0.01)],
+                  solver=SolverSettings(particles_per_cell=4), output=Output(path=str(tmp_path / "g.usdc")))
+    sim = Simulation(scene, "cpu")
+    assert set(sim.effects) == {"gas", "surface_tension"} and sim.region.enabled
+    for reads, iterations, solves in counted_steps(sim, 6):
+        other = {m: n for m, n in reads.by_module.items() if m not in SOLVER_MODULES}
+        assert 1 <= other.pop("core.voids") <= 4
+        if sim.stats.steps == 1:  # the gas's start pressure, read once before any step's read-back exists
+            assert other.pop("physics.gas") == 1
+        assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
+        assert reads.elements["core.active_box"] == 12
         assert_solver_within_bound(reads, iterations, solves)
 
 
@@ -87,9 +107,10 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
         modules = dict(reads.by_module)
         # Viscosity (explicit here): its stiffness rate, one float, by which the host picks the substeps.
         assert modules.pop("physics.viscous_solve") == 1
-        # The void pass: its count, then on a step with covered EMPTY cells the cell types and phases
-        # it labels on the host (core/voids.py).
-        assert 1 <= modules.pop("core.voids") <= 4
+        # The void pass: its count, then on a step with covered EMPTY cells the count the device sweeps
+        # left, and only if some are left the cell types, the sweeps' marks and the phases it labels on
+        # the host (core/voids.py).
+        assert 1 <= modules.pop("core.voids") <= 6
         if sim.stats.steps == 1:  # the gas's start pressure, read once before any step's read-back exists
             assert modules.pop("physics.gas") == 1
         # Entrainment, emitters, colliders, foam, gas, tension: no read at all (the gas's step measures

@@ -103,9 +103,10 @@ def test_tension_runs_only_when_asked_and_limits_the_step(drop, tmp_path):
 
 def test_gas_films_retract_into_the_bubble_beside_them():
     # The sub-cell part of surface tension (physics/tension.retract_gas_films), on a hand-made 2D grid
-    # of fluid cells whose left half is gas: a gas particle in a liquid cell next to the gas moves
-    # towards it by min(sqrt(2 sigma / (rho dx)) dt, dx/4); a gas particle with no gas cell in its
-    # 3x3 neighbourhood, and any liquid particle, stay where they are.
+    # of fluid cells whose left half is gas: a gas particle in a liquid cell next to the gas, on the
+    # liquid's side of the interface, moves towards it by min(sqrt(2 sigma / (rho dx)) dt, dx/4); a
+    # gas particle with no gas cell in its 3x3 neighbourhood, one on the gas's side of the interface
+    # (the resolved bubble, in the cell the interface crosses), and any liquid particle stay.
     from warp_mpm_bubbles.core.geometry import GridGeometry
     from warp_mpm_bubbles.core.grid import FLUID, PHASE_GAS, PHASE_LIQUID
     from warp_mpm_bubbles.physics.tension import retract_gas_films
@@ -115,18 +116,22 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     phase = np.full((n, n, 1), PHASE_LIQUID, dtype=np.int32)
     phase[:4] = PHASE_GAS
     gas_volume = np.where(phase == PHASE_GAS, dx**3, 0.0).astype(np.float32)
-    x = np.array([[4.3, 4.5, 0.5], [7.5, 4.5, 0.5], [4.3, 2.5, 0.5]], dtype=np.float32) * dx
-    particle_phase = np.array([PHASE_GAS, PHASE_GAS, PHASE_LIQUID], dtype=np.int32)
+    # The level set: -1 in the gas, +1 in the liquid, 0.2 in column 4, which the interface crosses:
+    # linear between the centres, it is 0 at x = 3.5 + 1/1.2 = 4.33 cells.
+    level = np.where(phase == PHASE_GAS, -1.0, 1.0).astype(np.float32)
+    level[4] = 0.2
+    x = np.array([[4.45, 4.5, 0.5], [7.5, 4.5, 0.5], [4.3, 2.5, 0.5], [4.2, 5.5, 0.5]], dtype=np.float32) * dx
+    particle_phase = np.array([PHASE_GAS, PHASE_GAS, PHASE_LIQUID, PHASE_GAS], dtype=np.int32)
     speed = math.sqrt(2.0 * SIGMA / (1000.0 * dx))  # 0.38 m/s: a one-cell film's Taylor-Culick speed
     geo = GridGeometry()
     geo.origin, geo.dx, geo.dim, geo.domain_hi = wp.vec3(0.0), dx, 2, wp.vec3(n * dx, n * dx, dx)
     for dt, expected in ((1.0e-4, speed * 1.0e-4), (1.0e-2, 0.25 * dx)):
         xs = wp.array(x, dtype=wp.vec3, device="cpu")
-        wp.launch(retract_gas_films, 3, device="cpu", inputs=[
+        wp.launch(retract_gas_films, len(x), device="cpu", inputs=[
             wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
-            speed, geo, dt, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
+            wp.array(level, device="cpu"), speed, geo, dt, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
             wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), xs,
-            wp.array(particle_phase, device="cpu"), wp.ones(3, dtype=wp.int32, device="cpu")])
+            wp.array(particle_phase, device="cpu"), wp.ones(len(x), dtype=wp.int32, device="cpu")])
         moved = xs.numpy() - x
         # the pull points at the gas-weighted centroid of the gas cells (3, 3..5): straight to -x
         assert moved[0, 0] == pytest.approx(-expected, rel=1e-4) and abs(moved[0, 1]) < 1e-9

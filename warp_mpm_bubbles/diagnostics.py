@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core.grid import connected_labels
+from .core.grid import closed_empty_cells, connected_labels
 
 
 def _dominance(positions, is_gas, volumes, dx, shape, dim):
@@ -93,23 +93,7 @@ def void_cells(types, ghost, up) -> int:
 
     types: the cell types of the last step (sim.fields.types.numpy()), ghost: sim.grid.ghost,
     up: sim.up ((axis, sign); axis -1 without gravity)."""
-    from .core.grid import EMPTY
-
-    types = np.asarray(types)
-    empty = np.argwhere(types == EMPTY)
-    if len(empty) == 0:
-        return 0
-    labels = connected_labels(empty, 3, faces_only=True)
-    shape, ghost = np.array(types.shape), np.array(ghost)
-    in_ghost = ((empty < ghost) | (empty >= shape - ghost)).any(axis=1)
-    axis, sign = up
-    if axis < 0:  # no "up": any side of the domain counts as the outside
-        top = ((empty == ghost) | (empty == shape - ghost - 1)).any(axis=1)
-    else:
-        top_index = shape[axis] - ghost[axis] - 1 if sign > 0 else ghost[axis]
-        top = empty[:, axis] == top_index
-    open_labels = np.unique(labels[in_ghost | top])
-    return int((~np.isin(labels, open_labels) & ~in_ghost).sum())
+    return len(closed_empty_cells(np.asarray(types), ghost, up)[0])
 
 
 # --------------------------------------------------------------------- shape: circularity, sphericity

@@ -12,12 +12,22 @@ The launches cover this step's box united with the previous step's, so the cells
 just left are reset to the empty state, and cells outside both were last written while outside the
 box, i.e. already hold it. The grid arrays therefore equal those of whole-grid launches bit for bit
 (tests/test_active_region.py). Scenes whose optional stages write grid arrays at the grid hooks keep
-whole-grid launches (`Simulation` decides), since their kernels may write anywhere.
+whole-grid launches (`Simulation` decides), since their kernels may write anywhere, unless each such
+stage is box-aware (`Stage.grid_box`: gas, surface tension).
+
+The same read brings the box of the resolved gas's particles (`ActiveRegion.gas`, with the same
+margin, no union): the gas's own velocity field and its cells' volume change are read only by gas
+particles and gas cells, so the gas computes them on that box alone (physics/gas.py). Outside it
+they keep stale values, which nothing reads, except on a step where the void pass seeded trapped air
+after the read: then `gas_box` is the whole grid.
 """
 
 from __future__ import annotations
 
 import warp as wp
+
+from .grid import PHASE_GAS
+from .lines import make_lines
 
 wp.set_module_options({"enable_backward": False})
 
@@ -27,23 +37,28 @@ BOX_MARGIN = 4  # cells around the particles' cells: 3 needed (docstring), 1 spa
 @wp.kernel
 def reset_bounds(box: wp.array(dtype=wp.int32)):
     t = wp.tid()
-    if t < 3:
+    if t % 6 < 3:
         box[t] = 2147483647
     else:
         box[t] = -1
 
 
 @wp.kernel
-def particle_cell_bounds(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), origin: wp.vec3, inv_dx: float,
-                         shape: wp.vec3i, box: wp.array(dtype=wp.int32)):
-    """box[0:3], box[3:6] = smallest and largest cell (clamped to the arrays) of an active particle."""
+def particle_cell_bounds(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), phase: wp.array(dtype=wp.int32),
+                         origin: wp.vec3, inv_dx: float, shape: wp.vec3i, box: wp.array(dtype=wp.int32)):
+    """box[0:3], box[3:6] = smallest and largest cell (clamped to the arrays) of an active particle;
+    box[6:12] the same of the resolved gas's (PHASE_GAS) particles."""
     p = wp.tid()
     if active[p] == 0:
         return
+    gas = phase[p] == PHASE_GAS
     for a in range(3):
         c = wp.clamp(int(wp.floor((x[p][a] - origin[a]) * inv_dx)), 0, shape[a] - 1)
         wp.atomic_min(box, a, c)
         wp.atomic_max(box, 3 + a, c)
+        if gas:
+            wp.atomic_min(box, 6 + a, c)
+            wp.atomic_max(box, 9 + a, c)
 
 
 def union(a, b):
@@ -54,22 +69,23 @@ def union(a, b):
     return (tuple(map(min, a[0], b[0])), tuple(map(max, a[1], b[1])))
 
 
-class ActiveRegion:
-    """The grid stages' launch box: `lo` (wp.vec3i, the kernels' offset), `cells` and `faces(axis)` the
-    launch dims. Disabled (`enabled=False`): the whole grid, and `update` reads nothing."""
+class LaunchBox:
+    """A box of cells to launch over: `lo` (wp.vec3i, the kernels' offset), `cells` and `faces(axis)` the
+    launch dims; `cell_lines` and `face_lines[axis]` the same box walked a line per thread
+    (core/lines.py: a Lines struct and its launch dims)."""
 
-    def __init__(self, grid, device, enabled: bool = True, margin: int = BOX_MARGIN):
-        self.shape, self.device, self.enabled, self.margin = tuple(grid.cells), device, enabled, margin
-        self.origin, self.inv_dx = wp.vec3(*grid.origin), 1.0 / grid.dx
-        self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
-        self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
-        self.host_reads = 0
-        self._set(self.previous)
+    def __init__(self, shape, device):
+        self.shape, self.device = tuple(shape), device
+        self.dim = 2 if self.shape[2] == 1 else 3  # a 2D grid is one cell thick in z
+        self._set(((0, 0, 0), self.shape))
 
     def _set(self, box):
         self.box = box
         self.lo = wp.vec3i(*box[0])
         self.cells = tuple(h - l for l, h in zip(*box))  # noqa: E741
+        self.cell_lines = make_lines(*box, self.dim, self.device)
+        self.face_lines = [make_lines(box[0], tuple(h + (a == b) * (h > l) for b, (l, h) in enumerate(zip(*box))),
+                                      self.dim, self.device) for a in range(3)]
 
     def faces(self, axis: int) -> tuple[int, int, int]:
         """Launch dims over the faces normal to `axis` of the box's cells (one more along axis)."""
@@ -77,27 +93,54 @@ class ActiveRegion:
             return self.cells
         return tuple(n + (a == axis) for a, n in enumerate(self.cells))
 
+
+class ActiveRegion(LaunchBox):
+    """The grid stages' launch box, and `gas`, the resolved gas's (this step's gas particles' cells and
+    the margin, no union: what the gas writes there it rewrites every step). Disabled (`enabled=False`):
+    both are the whole grid, and `update` reads nothing."""
+
+    def __init__(self, grid, device, enabled: bool = True, margin: int = BOX_MARGIN):
+        super().__init__(grid.cells, device)
+        self.enabled, self.margin = enabled, margin
+        self.origin, self.inv_dx = wp.vec3(*grid.origin), 1.0 / grid.dx
+        self.bounds = wp.zeros(12, dtype=wp.int32, device=device)
+        self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
+        self.host_reads = 0
+        self.particle_count = 0  # the particles the boxes were taken from (later ones may lie outside)
+        self.gas, self.whole = LaunchBox(self.shape, device), LaunchBox(self.shape, device)
+
     def whole_grid(self):
         """From now on the whole grid (a captured CUDA graph cannot read the box on the host)."""
         self.enabled = False
         self.previous = ((0, 0, 0), self.shape)
         self._set(self.previous)
+        self.gas._set(self.previous)
+
+    def gas_box(self, particles) -> LaunchBox:
+        """The gas's box; the whole grid if particles were added since the boxes were read (trapped air
+        that the void pass seeds may lie outside both boxes, where older gas left its values)."""
+        return self.gas if particles.count == self.particle_count else self.whole
+
+    def _grown(self, b):
+        """The box of cells from bounds b (smallest, largest cell) with the margin, clamped; empty if none."""
+        if b[3] < 0:  # no particle
+            return ((0, 0, 0), (0, 0, 0))
+        return (tuple(max(int(b[a]) - self.margin, 0) for a in range(3)),
+                tuple(min(int(b[3 + a]) + 1 + self.margin, self.shape[a]) for a in range(3)))
 
     def update(self, particles):
-        """This step's box from the particles (after p2g), united with the previous step's."""
+        """This step's box from the particles (before p2g, which splats within it), united with the previous step's."""
         if not self.enabled:
             return
-        wp.launch(reset_bounds, 6, inputs=[self.bounds], device=self.device)
+        self.particle_count = particles.count
+        wp.launch(reset_bounds, 12, inputs=[self.bounds], device=self.device)
         if particles.count:
             wp.launch(particle_cell_bounds, particles.count, device=self.device,
-                      inputs=[particles.x, particles.active, self.origin, self.inv_dx, wp.vec3i(*self.shape),
-                              self.bounds])
+                      inputs=[particles.x, particles.active, particles.phase, self.origin, self.inv_dx,
+                              wp.vec3i(*self.shape), self.bounds])
         b = self.bounds.numpy()
         self.host_reads += 1
-        if b[3] < 0:  # no active particle
-            current = ((0, 0, 0), (0, 0, 0))
-        else:
-            current = (tuple(max(int(b[a]) - self.margin, 0) for a in range(3)),
-                       tuple(min(int(b[3 + a]) + 1 + self.margin, self.shape[a]) for a in range(3)))
+        current = self._grown(b[:6])
         self._set(union(current, self.previous))
+        self.gas._set(self._grown(b[6:]))
         self.previous = current

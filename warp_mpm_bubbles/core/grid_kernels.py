@@ -11,6 +11,7 @@ import warp as wp
 from .grid import (
     EMPTY, FLUID, INTERFACE_BASELINE, PHASE_GAS, PHASE_LIQUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN,
 )
+from .lines import Lines, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})
 
@@ -57,12 +58,32 @@ def is_solid(t: int):
 
 @wp.kernel
 def momentum_to_velocity(
-    mom: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), accel: float, dt: float, vel: wp.array3d(dtype=float),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    mom: wp.array3d(dtype=float),
+    mass: wp.array3d(dtype=float),
+    accel: float,
+    dt: float,
+    vel: wp.array3d(dtype=float),
+    box: Lines,
 ):
     """u* = p/m + dt g on faces that received mass; zero elsewhere."""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        momentum_to_velocity_at(mom, mass, accel, dt, vel, c[0], c[1], c[2])
+
+
+@wp.func
+def momentum_to_velocity_at(
+    mom: wp.array3d(dtype=float),
+    mass: wp.array3d(dtype=float),
+    accel: float,
+    dt: float,
+    vel: wp.array3d(dtype=float),
+    i: int,
+    j: int,
+    k: int,
+):
     m = mass[i, j, k]
     if m > 0.0:
         vel[i, j, k] = mom[i, j, k] / m + dt * accel
@@ -102,7 +123,7 @@ def classify_cells(
     wall_lo: wp.vec3i,
     wall_hi: wp.vec3i,
     types: wp.array3d(dtype=wp.int32),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    box: Lines,
 ):
     """Ghost cells take the type of their wall (open walls are empty); inside, a cell is fluid if
     a particle is in it or if the splatted fill fraction exceeds HOLE_FRACTION.
@@ -111,8 +132,29 @@ def classify_cells(
     as empty they would pin p = 0 inside the water and vent bubbles. A one-cell hole still gets
     about 0.44 from its neighbours, while the air above a flat surface gets about 0.17.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        classify_cells_at(count, liq_volume, gas_volume, two_phase, inv_cell_vol, ghost, interior, wall_lo, wall_hi, types, c[0], c[1], c[2])
+
+
+@wp.func
+def classify_cells_at(
+    count: wp.array3d(dtype=wp.int32),
+    liq_volume: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    two_phase: int,
+    inv_cell_vol: float,
+    ghost: wp.vec3i,
+    interior: wp.vec3i,
+    wall_lo: wp.vec3i,
+    wall_hi: wp.vec3i,
+    types: wp.array3d(dtype=wp.int32),
+    i: int,
+    j: int,
+    k: int,
+):
     c = wp.vec3i(i, j, k)
     in_wall = int(0)
     sticky = int(0)
@@ -145,12 +187,14 @@ def classify_phases(
     gas_volume: wp.array3d(dtype=float),
     interface: int,
     phase: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Which fluid cells are gas. Baseline (the published rule): any gas particle in the cell.
     Sharp: the gas's splatted volume exceeds the liquid's, i.e. the cell centre is on the gas side
     of the interface that the particles describe.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     ph = PHASE_LIQUID
     if types[i, j, k] == FLUID:
         if interface == INTERFACE_BASELINE:
@@ -219,7 +263,7 @@ def face_inverse_density(
     axis: int,
     inv_cell_vol: float,
     inv_rho: wp.array3d(dtype=float),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    box: Lines,
 ):
     """Face weight of the pressure operator: 1/rho, divided by theta on liquid-air faces; 0 if inactive.
 
@@ -232,8 +276,30 @@ def face_inverse_density(
     takes rho = theta rho_liquid + (1 - theta) rho_gas with theta the liquid share of the segment
     between the centres (ghost-fluid method, Liu, Fedkiw & Kang 2000).
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        face_inverse_density_at(types, phase, liq_mass, liq_volume, gas_mass, gas_volume, two_phase, interface, axis, inv_cell_vol, inv_rho, c[0], c[1], c[2])
+
+
+@wp.func
+def face_inverse_density_at(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    liq_mass: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    gas_mass: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    two_phase: int,
+    interface: int,
+    axis: int,
+    inv_cell_vol: float,
+    inv_rho: wp.array3d(dtype=float),
+    i: int,
+    j: int,
+    k: int,
+):
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -308,10 +374,24 @@ def interface_density(
 
 
 @wp.kernel
-def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), lo: wp.vec3i):
+def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), box: Lines):
     """Walls are at rest: the normal velocity on any face touching a solid cell is zero."""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        zero_solid_faces_at(types, axis, vel, c[0], c[1], c[2])
+
+
+@wp.func
+def zero_solid_faces_at(
+    types: wp.array3d(dtype=wp.int32),
+    axis: int,
+    vel: wp.array3d(dtype=float),
+    i: int,
+    j: int,
+    k: int,
+):
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     if is_solid(cell_type_at(types, lo)) or is_solid(cell_type_at(types, hi)):
@@ -435,7 +515,7 @@ def pressure_diagonal_and_rhs(
     rhs: wp.array3d(dtype=float),
     target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    box: Lines,
 ):
     """Diagonal and right-hand side of the one two-phase system (docs/design.md, #pressure-equation), per fluid cell c:
 
@@ -449,8 +529,42 @@ def pressure_diagonal_and_rhs(
     counters[0] counts fluid cells, counters[1] those that pin the pressure level (an empty
     neighbour or kappa > 0): with none, the system is singular and the solver projects out the constant.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        pressure_diagonal_and_rhs_at(types, phase, inv_rho_u, inv_rho_v, inv_rho_w, vel_u, vel_v, vel_w, liq_volume, gas_volume, gas_pv, gas_kv, two_phase, interface, dx, dt, dim, volume_rate, diag, extra_diag, rhs, target_div, counters, c[0], c[1], c[2])
+
+
+@wp.func
+def pressure_diagonal_and_rhs_at(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    inv_rho_u: wp.array3d(dtype=float),
+    inv_rho_v: wp.array3d(dtype=float),
+    inv_rho_w: wp.array3d(dtype=float),
+    vel_u: wp.array3d(dtype=float),
+    vel_v: wp.array3d(dtype=float),
+    vel_w: wp.array3d(dtype=float),
+    liq_volume: wp.array3d(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    gas_pv: wp.array3d(dtype=float),
+    gas_kv: wp.array3d(dtype=float),
+    two_phase: int,
+    interface: int,
+    dx: float,
+    dt: float,
+    dim: int,
+    volume_rate: float,
+    diag: wp.array3d(dtype=float),
+    extra_diag: wp.array3d(dtype=float),
+    rhs: wp.array3d(dtype=float),
+    target_div: wp.array3d(dtype=float),
+    counters: wp.array(dtype=wp.int32),
+    i: int,
+    j: int,
+    k: int,
+):
     if two_phase != 0:
         target_div[i, j, k] = 0.0
     if types[i, j, k] != FLUID:
@@ -501,14 +615,33 @@ def subtract_pressure_gradient(
     dt: float,
     vel: wp.array3d(dtype=float),
     valid: wp.array3d(dtype=wp.int32),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    box: Lines,
 ):
     """u = u* - dt/rho dp/dx on faces next to fluid (p = 0 gauge in empty cells).
 
     Marks which faces now hold trusted velocities: projected faces and solid faces bordering fluid.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        subtract_pressure_gradient_at(types, pressure, inv_rho, axis, dx, dt, vel, valid, c[0], c[1], c[2])
+
+
+@wp.func
+def subtract_pressure_gradient_at(
+    types: wp.array3d(dtype=wp.int32),
+    pressure: wp.array3d(dtype=float),
+    inv_rho: wp.array3d(dtype=float),
+    axis: int,
+    dx: float,
+    dt: float,
+    vel: wp.array3d(dtype=float),
+    valid: wp.array3d(dtype=wp.int32),
+    i: int,
+    j: int,
+    k: int,
+):
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -529,44 +662,36 @@ def subtract_pressure_gradient(
 
 
 @wp.kernel
-def keep_phase_faces(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    axis: int,
-    keep: int,
-    valid_in: wp.array3d(dtype=wp.int32),
-    valid_out: wp.array3d(dtype=wp.int32),
-):
-    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
-
-    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
-    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
-    beside it across the interface. A face between a liquid and a gas cell keeps the normal
-    velocity both phases share.
-    """
-    i, j, k = wp.tid()
-    hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    valid_out[i, j, k] = 0
-    if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
-        valid_out[i, j, k] = valid_in[i, j, k]
-
-
-@wp.kernel
 def extrapolate_velocity(
     vel_in: wp.array3d(dtype=float),
     valid_in: wp.array3d(dtype=wp.int32),
     dim: int,
     vel_out: wp.array3d(dtype=float),
     valid_out: wp.array3d(dtype=wp.int32),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+    box: Lines,
 ):
     """One layer of extrapolation: an untrusted face takes the mean of its trusted neighbours.
 
     Ping-pong buffers keep the result independent of thread order.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        extrapolate_velocity_at(vel_in, valid_in, dim, vel_out, valid_out, c[0], c[1], c[2])
+
+
+@wp.func
+def extrapolate_velocity_at(
+    vel_in: wp.array3d(dtype=float),
+    valid_in: wp.array3d(dtype=wp.int32),
+    dim: int,
+    vel_out: wp.array3d(dtype=float),
+    valid_out: wp.array3d(dtype=wp.int32),
+    i: int,
+    j: int,
+    k: int,
+):
     vel_out[i, j, k] = vel_in[i, j, k]
     valid_out[i, j, k] = valid_in[i, j, k]
     if valid_in[i, j, k] == 1:
@@ -587,13 +712,27 @@ def extrapolate_velocity(
 
 
 @wp.kernel
-def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), lo: wp.vec3i):
+def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), box: Lines):
     """Zero normal velocity at solid faces; inside no-slip walls also zero the tangential velocity.
 
     Inside free-slip walls the extrapolated tangential velocity stays, so particles slide along.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        enforce_walls_at(types, axis, vel, c[0], c[1], c[2])
+
+
+@wp.func
+def enforce_walls_at(
+    types: wp.array3d(dtype=wp.int32),
+    axis: int,
+    vel: wp.array3d(dtype=float),
+    i: int,
+    j: int,
+    k: int,
+):
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)

@@ -53,6 +53,9 @@ import warp as wp
 
 from .grid import EMPTY, FLUID
 from .grid_kernels import at, unit
+from .lines import Lines, line_end, line_first, make_lines, on_line, split_lines
+from . import threads
+from .threads import Parallel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -80,24 +83,17 @@ class Level:
     scale: float
     dim: int
     finest: int
-    lo: wp.vec3i  # the active box [lo, hi): cells outside it are treated as outside the arrays
-    hi: wp.vec3i
+    box: Lines  # the active box [lo, hi): cells outside it are treated as outside the arrays
     done: wp.array(dtype=wp.int32)  # done[0] != 0: skip (the CG converged on the device)
 
 
 @wp.func
 def in_box(L: Level, c: wp.vec3i):
-    if c[0] < L.lo[0] or c[1] < L.lo[1] or c[2] < L.lo[2]:
+    if c[0] < L.box.lo[0] or c[1] < L.box.lo[1] or c[2] < L.box.lo[2]:
         return False
-    if c[0] >= L.hi[0] or c[1] >= L.hi[1] or c[2] >= L.hi[2]:
+    if c[0] >= L.box.hi[0] or c[1] >= L.box.hi[1] or c[2] >= L.box.hi[2]:
         return False
     return True
-
-
-@wp.func
-def box_cell(L: Level, i: int, j: int, k: int):
-    """Thread (i, j, k) of a launch over the box -> its cell."""
-    return wp.vec3i(i + L.lo[0], j + L.lo[1], k + L.lo[2])
 
 
 @wp.func
@@ -129,22 +125,22 @@ def neighbour_sum(L: Level, x: wp.array3d(dtype=float), i: int, j: int, k: int):
     # Sums grouped per axis as (low + high), skipped terms 0: on the whole grid this is the rounding of
     # the sum it replaced, term for term (the base solver's results are reproduced bit for bit).
     lo_t, hi_t = float(0.0), float(0.0)
-    if i > L.lo[0]:
+    if i > L.box.lo[0]:
         lo_t = L.w_u[i, j, k] * x[i - 1, j, k]
-    if i + 1 < L.hi[0]:
+    if i + 1 < L.box.hi[0]:
         hi_t = L.w_u[i + 1, j, k] * x[i + 1, j, k]
     s = lo_t + hi_t
     lo_t, hi_t = float(0.0), float(0.0)
-    if j > L.lo[1]:
+    if j > L.box.lo[1]:
         lo_t = L.w_v[i, j, k] * x[i, j - 1, k]
-    if j + 1 < L.hi[1]:
+    if j + 1 < L.box.hi[1]:
         hi_t = L.w_v[i, j + 1, k] * x[i, j + 1, k]
     s += lo_t + hi_t
     if L.dim == 3:
         lo_t, hi_t = float(0.0), float(0.0)
-        if k > L.lo[2]:
+        if k > L.box.lo[2]:
             lo_t = L.w_w[i, j, k] * x[i, j, k - 1]
-        if k + 1 < L.hi[2]:
+        if k + 1 < L.box.hi[2]:
             hi_t = L.w_w[i, j, k + 1] * x[i, j, k + 1]
         s += lo_t + hi_t
     return s
@@ -187,11 +183,18 @@ def coarse_coupling(F: Level, axis: int, f0: wp.vec3i):
 
 @wp.kernel
 def build_coarse(F: Level, C: Level, laplacian_scale: float):
-    """Coarse cell C's row of the operator from its fine children (one thread per cell of C's box)."""
+    """The rows of the operator on C's box from their fine children (a thread per line of C's box)."""
     if C.done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    cc = box_cell(C, ti, tj, tk)
+    first = line_first(C.box, ti, tj, tk)
+    for s in range(first[C.box.axis], line_end(C.box, first)):
+        coarse_row(F, C, on_line(first, C.box.axis, s), laplacian_scale)
+
+
+@wp.func
+def coarse_row(F: Level, C: Level, cc: wp.vec3i, laplacian_scale: float):
+    """Coarse cell cc's row of the operator from its fine children."""
     i, j, k = cc[0], cc[1], cc[2]
     nz = 1
     if F.dim == 3:
@@ -232,57 +235,64 @@ def build_coarse(F: Level, C: Level, laplacian_scale: float):
 
 
 @wp.kernel
-def smooth(L: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
-    """One colour of a red-black Gauss-Seidel sweep on A x = b over the box; thread (h, j, k) is the
-    cell of that colour with i = lo + 2 h or lo + 2 h + 1."""
+def smooth(L: Level, walk: Lines, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float), color: int):
+    """One colour of a red-black Gauss-Seidel sweep on A x = b over `walk` (the box, or a slab of it):
+    the cells of that colour (parity of i + j + k, as on the whole grid) of each thread's line
+    (core/lines.py). The colour's cells depend only on the other colour's, so slabs run at once."""
     if L.done[0] != 0:
         return
-    h, tj, tk = wp.tid()
-    j, k = tj + L.lo[1], tk + L.lo[2]
-    i = L.lo[0] + 2 * h + (L.lo[0] + j + k + color) % 2  # colour = parity of i + j + k, as on the whole grid
-    if i >= L.hi[0]:
-        return
-    if L.types[i, j, k] != FLUID:
-        return
-    d = L.diag[i, j, k]
-    if d > 0.0:
-        x[i, j, k] = (b[i, j, k] + L.scale * neighbour_sum(L, x, i, j, k)) / d
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    axis = walk.axis
+    parity = (first[0] + first[1] + first[2] + color) % 2
+    for s in range(first[axis] + parity, line_end(walk, first), 2):
+        c = on_line(first, axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if L.types[i, j, k] == FLUID:
+            d = L.diag[i, j, k]
+            if d > 0.0:
+                x[i, j, k] = (b[i, j, k] + L.scale * neighbour_sum(L, x, i, j, k)) / d
 
 
 @wp.kernel
 def restrict_residual(
-    F: Level, C: Level, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+    F: Level, C: Level, walk: Lines, b: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
     b_coarse: wp.array3d(dtype=float), x_coarse: wp.array3d(dtype=float),
 ):
-    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0 (over C's box)."""
+    """b_coarse = P^T (b - A x), summed over the fluid children; x_coarse = 0 (over `walk`: C's box,
+    or a slab of it)."""
     if C.done[0] != 0:
         return
-    ti, tj, tk = wp.tid()
-    cc = box_cell(C, ti, tj, tk)
-    i, j, k = cc[0], cc[1], cc[2]
     nz = 1
     if F.dim == 3:
         nz = 2
-    s = float(0.0)
-    for ox in range(2):
-        for oy in range(2):
-            for oz in range(nz):
-                c = 2 * cc + wp.vec3i(ox, oy, oz)
-                if type_at(F, c) == FLUID:
-                    s += residual(F, b, x, c)
-    b_coarse[i, j, k] = s
-    x_coarse[i, j, k] = 0.0
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    for line_s in range(first[walk.axis], line_end(walk, first)):
+        cc = on_line(first, walk.axis, line_s)
+        s = float(0.0)
+        for ox in range(2):
+            for oy in range(2):
+                for oz in range(nz):
+                    c = 2 * cc + wp.vec3i(ox, oy, oz)
+                    if type_at(F, c) == FLUID:
+                        s += residual(F, b, x, c)
+        b_coarse[cc[0], cc[1], cc[2]] = s
+        x_coarse[cc[0], cc[1], cc[2]] = 0.0
 
 
 @wp.kernel
-def prolongate(F: Level, x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+def prolongate(F: Level, walk: Lines, x_coarse: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
+    """x += P x_coarse over `walk` (F's box, or a slab of it)."""
     if F.done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    c = box_cell(F, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    if F.types[i, j, k] == FLUID:
-        x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]
+    first = line_first(walk, ti, tj, tk)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if F.types[i, j, k] == FLUID:
+            x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]
 
 
 @wp.func
@@ -384,16 +394,13 @@ def coarse_box(box, dim: int):
             tuple((n - 1) // 2 + 1 if a < dim else n for a, n in enumerate(hi)))
 
 
-def box_dims(box) -> tuple[int, int, int]:
-    return tuple(max(h - l, 0) for l, h in zip(*box))  # noqa: E741
-
-
 class MultigridPreconditioner:
     """z = M^-1 r by one V-cycle; call build(system, box) once per solve before apply()."""
 
     def __init__(self, shape, dim: int, dx: float, device, *, sweeps: int = SMOOTHING_SWEEPS,
-                 laplacian_scale: float = COARSE_LAPLACIAN_SCALE):
+                 laplacian_scale: float = COARSE_LAPLACIAN_SCALE, parallel: Parallel | None = None):
         self.dim, self.device = dim, device
+        self.parallel = parallel or Parallel(1)
         self.inv_dx2 = 1.0 / (dx * dx)
         self.sweeps, self.laplacian_scale = sweeps, laplacian_scale
         self.shapes = level_shapes(shape, dim)
@@ -419,10 +426,6 @@ class MultigridPreconditioner:
     def _launch(self, kernel, shape, inputs):
         wp.launch(kernel, shape, inputs=inputs, device=self.device)
 
-    def _smooth(self, lvl, b, x, color):
-        s = box_dims(self.boxes[lvl])
-        self._launch(smooth, ((s[0] + 1) // 2, s[1], s[2]), [self.levels[lvl], b, x, color])
-
     def build(self, system, box=None, done=None):
         """Wrap the fine system, build every coarse level from the one above, factor the coarsest.
 
@@ -437,28 +440,58 @@ class MultigridPreconditioner:
         F.diag, F.extra, F.dirichlet = system.diag, system.extra_diag, system.diag  # dirichlet unused here
         F.scale, F.dim, F.finest = self.inv_dx2, self.dim, 1
         self.levels[0] = F
+        self.dims = []  # each level's launch: a thread per line of its box (core/lines.py)
         for L, (lo, hi) in zip(self.levels, self.boxes):
-            L.lo, L.hi = wp.vec3i(*lo), wp.vec3i(*hi)
+            L.box, dims = make_lines(lo, hi, self.dim, self.device)
+            self.dims.append(dims)
             L.done = self.not_done if done is None else done
         for lvl in range(1, len(self.levels)):
-            self._launch(build_coarse, box_dims(self.boxes[lvl]),
+            self._launch(build_coarse, self.dims[lvl],
                          [self.levels[lvl - 1], self.levels[lvl], self.laplacian_scale])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
+        self._cycles = {}  # the V-cycle's recorded launches, per (r, z): the levels changed
 
     def apply(self, r, z):
         """z = M^-1 r (one V-cycle from z = 0 on the box); r and z are fine-level cell arrays, z is 0
-        outside the box."""
-        b, x, last = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1
+        outside the box. The cycle's launches are recorded once per build (Warp packs a launch's
+        arguments in Python: 25-30 us a launch, about 10 ms a step at the peer block) and replayed."""
+        key = (r.ptr, z.ptr)
+        if key not in self._cycles:
+            self._cycles[key] = self._record_cycle(r, z)
         z.zero_()
+        for stage in self._cycles[key]:
+            if len(stage) == 1:
+                stage[0].launch()
+            else:
+                self.parallel.run([part.launch for part in stage])
+
+    def _record_cycle(self, r, z):
+        """The V-cycle as stages of recorded launches: a stage's launches (slabs of one kernel's box,
+        on a level large enough to split; core/threads.py) run at once, stages one after another."""
+        b, x, last, L = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1, self.levels
+        stages = []
+
+        def smoothing(lvl, colors):
+            for _ in range(self.sweeps):
+                for color in colors:
+                    stages.append(self._parts(smooth, lvl, lambda walk: [L[lvl], walk, b[lvl], x[lvl], color]))
+
         for lvl in range(last):
-            for _ in range(self.sweeps):
-                for color in (0, 1):
-                    self._smooth(lvl, b[lvl], x[lvl], color)
-            self._launch(restrict_residual, box_dims(self.boxes[lvl + 1]),
-                         [self.levels[lvl], self.levels[lvl + 1], b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]])
-        self._launch(solve_coarsest, 1, [self.levels[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])
+            smoothing(lvl, (0, 1))
+            stages.append(self._parts(restrict_residual, lvl + 1,
+                                      lambda walk: [L[lvl], L[lvl + 1], walk, b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]]))
+        stages.append([self._record(solve_coarsest, 1, [L[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])])
         for lvl in range(last - 1, -1, -1):
-            self._launch(prolongate, box_dims(self.boxes[lvl]), [self.levels[lvl], x[lvl + 1], x[lvl]])
-            for _ in range(self.sweeps):
-                for color in (1, 0):
-                    self._smooth(lvl, b[lvl], x[lvl], color)
+            stages.append(self._parts(prolongate, lvl, lambda walk: [L[lvl], walk, x[lvl + 1], x[lvl]]))
+            smoothing(lvl, (1, 0))
+        return stages
+
+    def _record(self, kernel, dims, inputs):
+        return wp.launch(kernel, dims, inputs=inputs, device=self.device, record_cmd=True)
+
+    def _parts(self, kernel, lvl, inputs):
+        """Recorded launches of `kernel` over level lvl's box, split into one slab per thread along
+        axis 0 when the box has threads.SPLIT_CELLS cells or more (each launch costs a thread hand-off)."""
+        walk, dims = self.levels[lvl].box, self.dims[lvl]
+        parts = self.parallel.threads if math.prod(dims) * walk.length >= threads.SPLIT_CELLS else 1
+        return [self._record(kernel, d, inputs(w)) for w, d in split_lines(walk, dims, parts)]

@@ -23,6 +23,7 @@ import warp as wp
 
 from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
+from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
 
 wp.set_module_options({"enable_backward": False})
@@ -59,14 +60,9 @@ B_SUM, B2, X_SUM = range(3)
 DONE, ITERS = range(2)
 
 
-@wp.func
-def box_cell(lo: wp.vec3i, ti: int, tj: int, tk: int):
-    return wp.vec3i(ti + lo[0], tj + lo[1], tk + lo[2])
-
-
 @wp.kernel
 def apply_operator(
-    lo: wp.vec3i,
+    box: Lines,
     done: wp.array(dtype=wp.int32),
     types: wp.array3d(dtype=wp.int32),
     diag: wp.array3d(dtype=float),
@@ -84,87 +80,99 @@ def apply_operator(
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    if types[i, j, k] != FLUID:
-        out[i, j, k] = 0.0
-        return
-    # Neighbours that are not fluid contribute nothing: empty ones are p = 0, solid faces have 1/rho = 0.
-    s = inv_rho_u[i, j, k] * fluid_value(types, p, i - 1, j, k)
-    s += inv_rho_u[i + 1, j, k] * fluid_value(types, p, i + 1, j, k)
-    s += inv_rho_v[i, j, k] * fluid_value(types, p, i, j - 1, k)
-    s += inv_rho_v[i, j + 1, k] * fluid_value(types, p, i, j + 1, k)
-    if dim == 3:
-        s += inv_rho_w[i, j, k] * fluid_value(types, p, i, j, k - 1)
-        s += inv_rho_w[i, j, k + 1] * fluid_value(types, p, i, j, k + 1)
-    Ap = diag[i, j, k] * p[i, j, k] - s * inv_dx2
-    out[i, j, k] = Ap
-    wp.atomic_add(dots, row, DAD, wp.float64(p[i, j, k] * Ap))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if types[i, j, k] != FLUID:
+            out[i, j, k] = 0.0
+            continue
+        # Neighbours that are not fluid contribute nothing: empty ones are p = 0, solid faces have 1/rho = 0.
+        n = inv_rho_u[i, j, k] * fluid_value(types, p, i - 1, j, k)
+        n += inv_rho_u[i + 1, j, k] * fluid_value(types, p, i + 1, j, k)
+        n += inv_rho_v[i, j, k] * fluid_value(types, p, i, j - 1, k)
+        n += inv_rho_v[i, j + 1, k] * fluid_value(types, p, i, j + 1, k)
+        if dim == 3:
+            n += inv_rho_w[i, j, k] * fluid_value(types, p, i, j, k - 1)
+            n += inv_rho_w[i, j, k + 1] * fluid_value(types, p, i, j, k + 1)
+        Ap = diag[i, j, k] * p[i, j, k] - n * inv_dx2
+        out[i, j, k] = Ap
+        wp.atomic_add(dots, row, DAD, wp.float64(p[i, j, k] * Ap))
 
 
 @wp.kernel
-def mask_and_bound(lo: wp.vec3i, types: wp.array3d(dtype=wp.int32), x: wp.array3d(dtype=float),
+def mask_and_bound(region: Lines, types: wp.array3d(dtype=wp.int32), x: wp.array3d(dtype=float),
                    box: wp.array(dtype=wp.int32)):
     """x = 0 off the fluid cells (of the whole region: the warm start may hold an older step's cells);
     box[0:3], box[3:6] = min and max fluid cell (box starts at (big, -1))."""
     ti, tj, tk = wp.tid()
-    i, j, k = ti + lo[0], tj + lo[1], tk + lo[2]
-    if types[i, j, k] != FLUID:
-        x[i, j, k] = 0.0
-        return
-    wp.atomic_min(box, 0, i)
-    wp.atomic_min(box, 1, j)
-    wp.atomic_min(box, 2, k)
-    wp.atomic_max(box, 3, i)
-    wp.atomic_max(box, 4, j)
-    wp.atomic_max(box, 5, k)
+    first = line_first(region, ti, tj, tk)
+    for s in range(first[region.axis], line_end(region, first)):
+        c = on_line(first, region.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if types[i, j, k] != FLUID:
+            x[i, j, k] = 0.0
+            continue
+        wp.atomic_min(box, 0, i)
+        wp.atomic_min(box, 1, j)
+        wp.atomic_min(box, 2, k)
+        wp.atomic_max(box, 3, i)
+        wp.atomic_max(box, 4, j)
+        wp.atomic_max(box, 5, k)
 
 
 @wp.kernel
-def fluid_sums(lo: wp.vec3i, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+def fluid_sums(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
                x: wp.array3d(dtype=float), sums: wp.array(dtype=wp.float64), slot: int, square_slot: int):
     """sums[slot] += sum of x over the fluid cells; sums[square_slot] += x . x (if square_slot >= 0)."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    if types[c[0], c[1], c[2]] == FLUID:
-        v = x[c[0], c[1], c[2]]
-        wp.atomic_add(sums, slot, wp.float64(v))
-        if square_slot >= 0:
-            wp.atomic_add(sums, square_slot, wp.float64(v * v))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        if types[c[0], c[1], c[2]] == FLUID:
+            v = x[c[0], c[1], c[2]]
+            wp.atomic_add(sums, slot, wp.float64(v))
+            if square_slot >= 0:
+                wp.atomic_add(sums, square_slot, wp.float64(v * v))
 
 
 @wp.kernel
-def fluid_dot(lo: wp.vec3i, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+def fluid_dot(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
               x: wp.array3d(dtype=float), y: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64), row: int):
     """dots[row, RZ_MG] += x . y, dots[row, Z_SUM] += sum of y over fluid cells."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    if types[i, j, k] == FLUID:
-        wp.atomic_add(dots, row, RZ_MG, wp.float64(x[i, j, k] * y[i, j, k]))
-        wp.atomic_add(dots, row, Z_SUM, wp.float64(y[i, j, k]))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if types[i, j, k] == FLUID:
+            wp.atomic_add(dots, row, RZ_MG, wp.float64(x[i, j, k] * y[i, j, k]))
+            wp.atomic_add(dots, row, Z_SUM, wp.float64(y[i, j, k]))
 
 
 @wp.kernel
-def shift_fluid(lo: wp.vec3i, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+def shift_fluid(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
                 x: wp.array3d(dtype=float), sums: wp.array(dtype=wp.float64), slot: int, n: int):
     """x -= sums[slot] / n on the fluid cells: removes the mean when sums[slot] is x's sum over n cells."""
     if done[0] != 0:
         return
+    shift = float(-sums[slot] / wp.float64(n))
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    if types[i, j, k] == FLUID:
-        x[i, j, k] = x[i, j, k] + float(-sums[slot] / wp.float64(n))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        if types[i, j, k] == FLUID:
+            x[i, j, k] = x[i, j, k] + shift
 
 
 @wp.kernel
 def start_iteration(
-    lo: wp.vec3i,
+    box: Lines,
     done: wp.array(dtype=wp.int32),
     b: wp.array3d(dtype=float),
     Ax: wp.array3d(dtype=float),
@@ -178,20 +186,22 @@ def start_iteration(
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    res = b[i, j, k] - Ax[i, j, k]
-    z = preconditioned(res, diag[i, j, k], mode)
-    r[i, j, k] = res
-    d[i, j, k] = z
-    wp.atomic_add(dots, 0, R_SUM, wp.float64(res))
-    wp.atomic_add(dots, 0, RR, wp.float64(res * res))
-    wp.atomic_add(dots, 0, RZ, wp.float64(res * z))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        res = b[i, j, k] - Ax[i, j, k]
+        z = preconditioned(res, diag[i, j, k], mode)
+        r[i, j, k] = res
+        d[i, j, k] = z
+        wp.atomic_add(dots, 0, R_SUM, wp.float64(res))
+        wp.atomic_add(dots, 0, RR, wp.float64(res * res))
+        wp.atomic_add(dots, 0, RZ, wp.float64(res * z))
 
 
 @wp.kernel
 def step_solution(
-    lo: wp.vec3i,
+    box: Lines,
     done: wp.array(dtype=wp.int32),
     dots: wp.array2d(dtype=wp.float64),
     row: int,
@@ -213,16 +223,18 @@ def step_solution(
         return
     alpha = float(dots[row - 1, rz_slot] / dAd)
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
-    res = r[i, j, k] - alpha * Ad[i, j, k]
-    zz = preconditioned(res, diag[i, j, k], mode)
-    r[i, j, k] = res
-    z[i, j, k] = zz
-    wp.atomic_add(dots, row, R_SUM, wp.float64(res))
-    wp.atomic_add(dots, row, RR, wp.float64(res * res))
-    wp.atomic_add(dots, row, RZ, wp.float64(res * zz))
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
+        res = r[i, j, k] - alpha * Ad[i, j, k]
+        zz = preconditioned(res, diag[i, j, k], mode)
+        r[i, j, k] = res
+        z[i, j, k] = zz
+        wp.atomic_add(dots, row, R_SUM, wp.float64(res))
+        wp.atomic_add(dots, row, RR, wp.float64(res * res))
+        wp.atomic_add(dots, row, RZ, wp.float64(res * zz))
 
 
 @wp.kernel
@@ -253,25 +265,29 @@ def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.arr
 
 
 @wp.kernel
-def zero_if_trivial(lo: wp.vec3i, sums: wp.array(dtype=wp.float64), x: wp.array3d(dtype=float)):
+def zero_if_trivial(box: Lines, sums: wp.array(dtype=wp.float64), x: wp.array3d(dtype=float)):
     """b = 0 on every fluid cell: the solution is x = 0."""
     if sums[B2] == wp.float64(0.0):
         ti, tj, tk = wp.tid()
-        c = box_cell(lo, ti, tj, tk)
-        x[c[0], c[1], c[2]] = 0.0
+        first = line_first(box, ti, tj, tk)
+        for s in range(first[box.axis], line_end(box, first)):
+            c = on_line(first, box.axis, s)
+            x[c[0], c[1], c[2]] = 0.0
 
 
 @wp.kernel
-def update_direction(lo: wp.vec3i, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64), row: int,
+def update_direction(box: Lines, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64), row: int,
                      rz_slot: int, z: wp.array3d(dtype=float), d: wp.array3d(dtype=float)):
     """d = z + beta d with beta = rz(row) / rz(row - 1), from the device."""
     if done[0] != 0:
         return
     beta = float(dots[row, rz_slot] / dots[row - 1, rz_slot])
     ti, tj, tk = wp.tid()
-    c = box_cell(lo, ti, tj, tk)
-    i, j, k = c[0], c[1], c[2]
-    d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        i, j, k = c[0], c[1], c[2]
+        d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
 
 
 @dataclass
@@ -342,7 +358,7 @@ class PressureSolver:
     """
 
     def __init__(self, shape, dim: int, dx: float, device, *, active_box: bool = True,
-                 check_every: int = CHECK_EVERY):
+                 check_every: int = CHECK_EVERY, parallel=None):
         self.dim, self.dx = dim, dx
         self.inv_dx2 = 1.0 / (dx * dx)
         self.device = device
@@ -356,6 +372,7 @@ class PressureSolver:
         self.info = wp.zeros(3, dtype=wp.float64, device=device)
         self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
         self.multigrid = None  # built on first use
+        self.parallel = parallel  # the CPU's threads for the V-cycle's large launches (core/threads.py)
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
         self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
@@ -367,8 +384,8 @@ class PressureSolver:
         """Mask x to the fluid cells and set self.box to the fluid bounding box grown by one cell."""
         lo, hi = region or ((0, 0, 0), self.shape)
         wp.launch(reset_bounds, 6, inputs=[self.bounds], device=self.device)
-        wp.launch(mask_and_bound, tuple(h - l for l, h in zip(lo, hi)), inputs=[wp.vec3i(*lo), types, x, self.bounds],  # noqa: E741
-                  device=self.device)
+        walk, dims = make_lines(lo, hi, self.dim, self.device)
+        wp.launch(mask_and_bound, dims, inputs=[walk, types, x, self.bounds], device=self.device)
         if not self.active_box:
             self.box = ((0, 0, 0), tuple(self.shape))
         else:
@@ -379,8 +396,7 @@ class PressureSolver:
             else:
                 self.box = (tuple(max(int(b[a]) - 1, 0) for a in range(3)),
                             tuple(min(int(b[3 + a]) + 2, self.shape[a]) for a in range(3)))
-        self.lo = wp.vec3i(*self.box[0])
-        self.dims = tuple(h - l for l, h in zip(*self.box))  # noqa: E741
+        self.lines, self.dims = make_lines(*self.box, self.dim, self.device)
 
     def _v_cycle(self, types, r, z, row: int, n_project: int):
         """z = M^-1 r by the multigrid V-cycle; dots[row] gets r . z and the sum of z.
@@ -389,13 +405,13 @@ class PressureSolver:
         onto the range (mean zero). Round-off leaves r a small constant part, which the V-cycle
         would amplify (the constant is its near-null direction) and CG then loses orthogonality.
         """
-        lo, done, rows = self.lo, self.done, self.rows
+        box, done, rows = self.lines, self.done, self.rows
         if n_project:
-            self._launch(shift_fluid, [lo, done, types, r, rows[row], R_SUM, n_project])
+            self._launch(shift_fluid, [box, done, types, r, rows[row], R_SUM, n_project])
         self.multigrid.apply(r, z)
-        self._launch(fluid_dot, [lo, done, types, r, z, rows, row])
+        self._launch(fluid_dot, [box, done, types, r, z, rows, row])
         if n_project:
-            self._launch(shift_fluid, [lo, done, types, z, rows[row], Z_SUM, n_project])
+            self._launch(shift_fluid, [box, done, types, z, rows[row], Z_SUM, n_project])
 
     def _check(self):
         """Read the device's flag, iteration count and residual: the only read while iterating."""
@@ -412,30 +428,31 @@ class PressureSolver:
         types, diag, inv_rho = system.types, system.diag, system.inv_rho
         self.host_reads = 0
         self._find_box(types, x, region)
-        if min(self.dims) == 0:
+        if min(h - l for l, h in zip(*self.box)) == 0:  # noqa: E741
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
             self.rows = wp.zeros((max_iter + 1, ROW), dtype=wp.float64, device=self.device)
-        lo, done, rows, sums = self.lo, self.done, self.rows, self.scalars
+        box, done, rows, sums = self.lines, self.done, self.rows, self.scalars
         for a in (rows, sums, done, self.info):
             a.zero_()
         project = n_fluid if singular else 0
         if project:  # closed tank: only b's component orthogonal to constants is reachable
-            self._launch(fluid_sums, [lo, done, types, b, sums, B_SUM, -1])
-            self._launch(shift_fluid, [lo, done, types, b, sums, B_SUM, project])
-        self._launch(fluid_sums, [lo, done, types, b, sums, 3, B2])
-        self._launch(zero_if_trivial, [lo, sums, x])
+            self._launch(fluid_sums, [box, done, types, b, sums, B_SUM, -1])
+            self._launch(shift_fluid, [box, done, types, b, sums, B_SUM, project])
+        self._launch(fluid_sums, [box, done, types, b, sums, 3, B2])
+        self._launch(zero_if_trivial, [box, sums, x])
         if mode == MULTIGRID:
             if self.multigrid is None:
-                self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device)
+                self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device,
+                                                         parallel=self.parallel)
             self.multigrid.build(system, self.box, done)
         apply = lambda p, out, row: self._launch(  # noqa: E731
-            apply_operator, [lo, done, types, diag, *inv_rho, self.inv_dx2, self.dim, p, out, rows, row])
+            apply_operator, [box, done, types, diag, *inv_rho, self.inv_dx2, self.dim, p, out, rows, row])
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
         tol2 = wp.float64(tol * tol)
 
         apply(x, self.Ad, 0)  # its p . A p lands in row 0's DAD slot, which nothing reads
-        self._launch(start_iteration, [lo, done, b, self.Ad, diag, mode, self.r, self.d, rows])
+        self._launch(start_iteration, [box, done, b, self.Ad, diag, mode, self.r, self.d, rows])
         self._launch(check_convergence, [rows, 0, sums, tol2, done, self.info], dim=1)
         if mode == MULTIGRID:
             self._v_cycle(types, self.r, self.d, 0, project)
@@ -446,12 +463,12 @@ class PressureSolver:
             for _ in range(min(chunk, max_iter - row)):
                 row += 1
                 apply(self.d, self.Ad, row)
-                self._launch(step_solution, [lo, done, rows, row, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
+                self._launch(step_solution, [box, done, rows, row, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
                                              self.z])
                 self._launch(check_convergence, [rows, row, sums, tol2, done, self.info], dim=1)
                 if mode == MULTIGRID:
                     self._v_cycle(types, self.r, self.z, row, project)
-                self._launch(update_direction, [lo, done, rows, row, rz_slot, self.z, self.d])
+                self._launch(update_direction, [box, done, rows, row, rz_slot, self.z, self.d])
             stop, it, rel2 = self._check()
             chunk = self.check_every
         if row == 0:  # max_iter == 0
@@ -459,7 +476,7 @@ class PressureSolver:
         self.predicted = max(it, 1)
         if project:
             done.zero_()
-            self._launch(fluid_sums, [lo, done, types, x, sums, X_SUM, -1])
-            self._launch(shift_fluid, [lo, done, types, x, sums, X_SUM, project])
+            self._launch(fluid_sums, [box, done, types, x, sums, X_SUM, -1])
+            self._launch(shift_fluid, [box, done, types, x, sums, X_SUM, project])
         rel = math.sqrt(rel2)
         return SolveInfo(it, rel, rel <= tol)

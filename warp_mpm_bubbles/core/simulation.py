@@ -37,7 +37,10 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, split_pairs
+from . import threads
+from .lines import split_lines
+from .threads import Parallel, cpu_threads, split
+from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, fastest_of_parts, split_pairs
 from .voids import VoidPass
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
@@ -53,7 +56,8 @@ TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
 # Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
 # only per-step argument (colliders pass the time: not these; unknown stages: not these).
 GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
-# Hooks at which stages write grid arrays (anywhere): with any of them the grid stages cover the whole grid.
+# Hooks at which stages write grid arrays: unless every stage there is box-aware (Stage.grid_box), the grid
+# stages cover the whole grid, since its kernels may write anywhere.
 GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
@@ -106,7 +110,10 @@ class Simulation:
         self._init_geometry()
         self.particles = ParticleState(self.device)
         self.fields = GridFields(g, self.device)
-        self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device)
+        self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
+        self.speed_parts = wp.zeros(self.parallel.threads, dtype=float, device=self.device)
+        self._loaded: set = set()  # kernels launched once already (_launch_parts)
+        self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
@@ -115,7 +122,8 @@ class Simulation:
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
-        self.region = ActiveRegion(g, self.device, enabled=not any(self._hooks[h] for h in GRID_WRITING_HOOKS))
+        self.region = ActiveRegion(g, self.device,
+                                   enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
 
     def _init_geometry(self):
@@ -211,8 +219,8 @@ class Simulation:
         self._run("begin_step", dt)  # emitters
         with self.timer("p2g"):
             self._sort_if_due()
-            self.particles_to_grid()
             self.region.update(self.particles)  # one read: the box the grid stages cover
+            self.particles_to_grid(self.region)
             self._run("after_p2g", dt)  # gas sums
         with self.timer("grid"):
             self._grid_velocity_and_cells(dt)
@@ -304,42 +312,50 @@ class Simulation:
         self.particles.sort_by_cell(self.geometry, self.grid.cells, self.launch)
         self._sorted_at = self.stats.steps
 
-    def particles_to_grid(self):
-        """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts."""
-        f, p = self.fields, self.particles
+    def particles_to_grid(self, region: ActiveRegion | None = None):
+        """Splat the particles: face momenta and masses, liquid mass and volume per cell, counts.
+        region: a box holding every particle's stencil (this step's ActiveRegion), or the whole grid.
+        On the CPU the splat runs as one part per thread, each owning a slab of the box's nodes along
+        x (core/threads.py): the same sums, bit for bit, as one launch."""
+        f, p, r = self.fields, self.particles, region or self.region.whole
         for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
-        self.launch(P2G[self.grid.dim], p.count,
-                    [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite])
+        args = [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs,
+                f.cell_count, f.nonfinite]
+        lo, hi = r.box[0][0], r.box[1][0] + 1  # the box's nodes along x (faces: one more than cells)
+        cuts = split(lo, hi, self.parallel.threads)
+        cuts[0], cuts[-1] = 0, f.face_pairs[0].shape[0]  # every node belongs to some part
+        self._launch_parts(P2G[self.grid.dim], [(p.count, [*args, a, b]) for a, b in zip(cuts, cuts[1:])])
         for a in range(3):
-            self.launch(split_pairs, f.mom[a].shape, [f.face_pairs[a], f.mom[a], f.face_mass[a]])
-        self.launch(split_pairs, self.grid.cells, [f.cell_pairs, f.liq_mass, f.liq_volume])
+            self.launch_lines(split_pairs, r.face_lines[a], [f.face_pairs[a], f.mom[a], f.face_mass[a]])
+        self.launch_lines(split_pairs, r.cell_lines, [f.cell_pairs, f.liq_mass, f.liq_volume])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch(gk.momentum_to_velocity, r.faces(a), [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a], r.lo])
+            self.launch_lines(gk.momentum_to_velocity, r.face_lines[a], [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a]])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
-        self.launch(gk.classify_cells, r.cells,
-                    [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
-                     wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types, r.lo])
+        self.launch_lines(gk.classify_cells, r.cell_lines,
+                          [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
+                           wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
         for a in g.axes:
-            self.launch(gk.zero_solid_faces, r.faces(a), [f.types, a, f.vel[a], r.lo])
-            self.launch(gk.face_inverse_density, r.faces(a),
-                        [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume, self.two_phase,
-                         self.interface, a, 1.0 / g.dx**3, f.inv_rho[a], r.lo])
+            self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [f.types, a, f.vel[a]])
+            self.launch_lines(gk.face_inverse_density, r.face_lines[a],
+                              [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume,
+                               self.two_phase, self.interface, a, 1.0 / g.dx**3, f.inv_rho[a]])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        self.launch(gk.pressure_diagonal_and_rhs, r.cells,
+        box, dims = r.cell_lines
+        self.launch(gk.pressure_diagonal_and_rhs, dims,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                      self.two_phase, self.interface, g.dx, dt, g.dim,
                      gk.volume_relaxation_rate(self.scene.solver.volume_relaxation_time, dt),
-                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, r.lo])
+                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, box])
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
@@ -359,19 +375,21 @@ class Simulation:
         )
         self.stats.record(info)
         for a in g.axes:
-            self.launch(gk.subtract_pressure_gradient, r.faces(a),
-                        [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a], r.lo])
+            self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
+                              [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
 
-    def extend(self, vel, valid):
+    def extend(self, vel, valid, box=None):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,
-        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given."""
-        g, f, r = self.grid, self.fields, self.region
+        then the stages' boundary velocities (moving colliders). Swaps arrays in the lists given.
+        `box`: the cells to cover (an active_box.LaunchBox inside the region), else the region."""
+        g, f, r = self.grid, self.fields, box or self.region
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
-                self.launch(gk.extrapolate_velocity, r.faces(a), [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a], r.lo])
+                self.launch_lines(gk.extrapolate_velocity, r.face_lines[a],
+                                  [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a]])
                 vel[a], f.vel_tmp[a] = f.vel_tmp[a], vel[a]
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
-            self.launch(gk.enforce_walls, r.faces(a), [f.types, a, vel[a], r.lo])
+            self.launch_lines(gk.enforce_walls, r.face_lines[a], [f.types, a, vel[a]])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
 
@@ -381,8 +399,41 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        self.launch(G2P[self.grid.dim], p.count,
-                    [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells, f.max_speed])
+        args = [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells]
+        if self.parallel.threads == 1:
+            self.launch(G2P[self.grid.dim], p.count, [*args, 0, f.max_speed, 0])
+            return
+        # One part per thread: particles are independent; their largest speed, combined exactly.
+        self.speed_parts.zero_()
+        cuts = split(0, p.count, self.parallel.threads)
+        self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q])
+                                                for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
+        self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, f.max_speed])
+
+    def launch_lines(self, kernel, lines, inputs):
+        """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
+        writes only what it walks: lines = (Lines, dims), the Lines struct its last argument. A box of
+        SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
+        box, dims = lines
+        parts = self.parallel.threads if math.prod(dims) * box.length >= threads.SPLIT_CELLS else 1
+        if parts == 1:
+            self.launch(kernel, dims, [*inputs, box])
+        else:
+            self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in split_lines(box, dims, parts)])
+
+    def _launch_parts(self, kernel, parts):
+        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the
+        first time one after the other: the first launch compiles or loads the kernel's module, which
+        must happen once, on one thread)."""
+        self.launches[kernel.key] += len(parts)
+        calls = [lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
+                 for d, inputs in parts]
+        if kernel in self._loaded:
+            self.parallel.run(calls)
+        else:
+            for call in calls:
+                call()
+            self._loaded.add(kernel)
 
     # ---------------------------------------------------------------------------- time steps
     def dt_limits(self) -> dict[str, float]:

@@ -72,6 +72,10 @@ class Stage:
     Settings: ClassVar[type | None] = None
     timer: ClassVar[str | None] = None  # None: the stage's name
     limit: ClassVar[str | None] = None  # its dt_limit's name in Simulation.dt_limits(); None: the stage's name
+    # True: its kernels at the grid hooks cover only `sim.region` (the grid stages' box, with the
+    # offset `sim.region.lo`) and leave every cell outside it in the empty state (core/active_box.py).
+    # A scene whose grid-hook stages all say so keeps the box; any other stage there: the whole grid.
+    grid_box: ClassVar[bool] = False
 
     def __init__(self, sim, settings=None):
         self.settings = settings

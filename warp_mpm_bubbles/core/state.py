@@ -205,8 +205,9 @@ class GridFields:
         # fluid cells, pinned cells (pressure_diagonal_and_rhs), then a copy of nonfinite: one read
         self.counters = wp.zeros(3, dtype=wp.int32, device=device)
         # The step's one read-back: [0] fastest particle this step, [1] bubbles entrained this step,
-        # [2] the gas's largest |gauge pressure|, [3] its fastest volume change rate (physics/gas.py)
-        self.max_speed = wp.zeros(4, dtype=float, device=device)
+        # [2] the gas's largest |gauge pressure|, [3] its fastest volume change rate, [4] whether a
+        # cavity may exist next step (physics/gas.py)
+        self.max_speed = wp.zeros(5, dtype=float, device=device)
         self.nonfinite = wp.zeros(1, dtype=wp.int32, device=device)  # particles p2g refused this step
         self.vented_mass = wp.zeros(1, dtype=wp.float64, device=device)  # kg of gas gone to the air
 

@@ -71,7 +71,10 @@ def load_checkpoint(sim, path) -> None:
         particles.reserve(n)
         particles.count = n
         for name in particles.fields:
-            getattr(particles, name)[:n].assign(data[f"particle_{name}"])
+            if f"particle_{name}" in data.files:
+                getattr(particles, name)[:n].assign(data[f"particle_{name}"])
+            else:  # a stage's field an older checkpoint lacks (cavity_gas): zero, its fresh default
+                getattr(particles, name)[:n].zero_()
             if n < particles.capacity:  # beyond the count stays zero (appends rely on it)
                 getattr(particles, name)[n:].zero_()
         for name in GRID_CHECKPOINT:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..core.simulation import SimulationError
+from ..core.threads import cpu_threads
 from ..scene.limits import check_memory as _check_scene_memory
 
 GPU_NEEDS = ("a GPU run needs an NVIDIA CUDA-capable GPU, its NVIDIA driver (`nvidia-smi` lists the GPU) and "
@@ -29,7 +30,11 @@ def _available() -> list[str]:
 
 def check_device(name=None):
     """The Warp device called `name` (None: Warp's default), or DeviceError listing the devices
-    Warp sees and what a GPU run needs."""
+    Warp sees and what a GPU run needs (or what is wrong with WARP_MPM_CPU_THREADS)."""
+    try:
+        cpu_threads()
+    except ValueError as err:
+        raise DeviceError(str(err)) from None
     there = _available()
     if name is not None:
         name = str(name)

@@ -27,7 +27,9 @@ from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.grid_kernels import cell_of, cell_type_at, unit
 from ..core.stage import Stage
-from ..core.transfer_kernels import gas_pressure, gas_volume_rate, p2g_gas, update_gas_J
+from ..core.transfer_kernels import (CELL_OFFSET, GAS_ADIABATIC, clamp_to_domain, gas_pressure, gas_volume_rate,
+                                     grid_coord, make_stencil, p2g_gas, update_gas_J)
+from .cavity import CAVITY_ENTER, CAVITY_GAS, Cavities
 
 wp.set_module_options({"enable_backward": False})
 
@@ -55,9 +57,11 @@ def liquid_ceiling(
     up_axis: int,
     up_sign: int,
     ceiling: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """Per column along gravity, the height of the highest liquid cell (-1: none)."""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_LIQUID:
         return
     c = wp.vec3i(i, j, k)
@@ -117,8 +121,90 @@ def vent_exposed_gas(
         wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
 
 
+# ------------------------------------------------------------------------- the liquid's own field
+@wp.kernel
+def keep_phase_faces(
+    types: wp.array3d(dtype=wp.int32),
+    phase: wp.array3d(dtype=wp.int32),
+    axis: int,
+    keep: int,
+    vel: wp.array3d(dtype=float),
+    valid: wp.array3d(dtype=wp.int32),
+    shared_vel: wp.array3d(dtype=float),
+    shared_valid: wp.array3d(dtype=wp.int32),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
+):
+    """Trust only the faces that touch a fluid cell of phase `keep`; the others get extrapolated.
+    The projected field as it was goes to shared_vel, shared_valid (the other phase's copy).
+
+    The liquid's own field (liquid_velocity = "own"): liquid particles read velocities extended
+    from the liquid's side, so the fast gas circulating inside a bubble does not drag the water
+    beside it across the interface. A face between a liquid and a gas cell keeps the normal
+    velocity both phases share.
+    """
+    i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    trusted = valid[i, j, k]
+    shared_vel[i, j, k] = vel[i, j, k]
+    shared_valid[i, j, k] = trusted
+    hi = wp.vec3i(i, j, k)
+    lo = hi - unit(axis)
+    valid[i, j, k] = 0
+    if gk.is_phase_cell(types, phase, lo, keep) or gk.is_phase_cell(types, phase, hi, keep):
+        valid[i, j, k] = trusted
+
+
+# ------------------------------------------------------------------------------ pressure spread
+MAX_PRESSURE_SPREAD = 10.0  # a gas particle's pressure, at most this many times its cells' (absolute)
+SPREAD_GATE = MAX_PRESSURE_SPREAD - 1.0  # checked only while some gas is a cavity's or this far above ambient
+
+
+@wp.kernel
+def limit_gas_pressure_spread(
+    x: wp.array(dtype=wp.vec3),
+    phase: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    law: wp.array(dtype=wp.int32),
+    gamma: wp.array(dtype=float),
+    gas_volume: wp.array3d(dtype=float),
+    gas_pv: wp.array3d(dtype=float),
+    p_atm: float,
+    spread: float,
+    geo: GridGeometry,
+    J: wp.array(dtype=float),
+):
+    """A gas particle's absolute pressure stays within `spread` times the highest of its cells'
+    (the pressure the solve sees: volume-weighted, so a particle crushed to no volume has no say in
+    it). A cell's volume change is shared by all its particles alike, so one already crushed (a
+    sliver's tail beside the liquid) was crushed again every step while its cell's pressure stayed
+    low, until its pressure, and with it the gas_expansion step, ran away (1e9 Pa, 1e-17 s, then
+    NaN, after a 0.5%-ambient cavity closed). Measured spread in the 0.2 p_inf collapse: 1.26."""
+    p = wp.tid()
+    if active[p] == 0 or phase[p] != PHASE_GAS or law[p] == 0 or not wp.isfinite(x[p]):
+        return
+    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
+    s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
+    highest = float(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(s.nk):
+                vg = gas_volume[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+                if vg > 0.0:
+                    highest = wp.max(highest, p_atm + gas_pv[s.base[0] + i, s.base[1] + j, s.base[2] + k] / vg)
+    cap = spread * highest
+    if highest <= 0.0 or p_atm + gas_pressure(law[p], J[p], gamma[p], p_atm) <= cap:
+        return
+    if law[p] == GAS_ADIABATIC:
+        J[p] = wp.pow(p_atm / cap, 1.0 / gamma[p])
+    else:
+        J[p] = p_atm / cap
+
+
 # ------------------------------------------------------------------------------ the step limit
 GAS_EXPANSION_SHARE = 0.1  # the most a gas cell's volume may change in one step (relative)
+
+
+GAUGE_SLOT, RATE_SLOT, CAVITY_SLOT = 2, 3, 4  # the gas's slots of the step's read-back (core/state.py)
 
 
 @wp.kernel
@@ -128,15 +214,20 @@ def gas_step_measures(
     J: wp.array(dtype=float),
     law: wp.array(dtype=wp.int32),
     gamma: wp.array(dtype=float),
+    cavity_gas: wp.array(dtype=wp.int32),
     p_atm: float,
-    slot: int,
+    cavity_enter: float,
     out: wp.array(dtype=float),
 ):
-    """out[slot]: the largest |gauge pressure| of the gas particles."""
+    """out[GAUGE_SLOT]: the largest |gauge pressure| of the gas particles; out[CAVITY_SLOT] = 1 if
+    any is a cavity's or below the cavity's entry pressure (else no cell can be a cavity's next step)."""
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    wp.atomic_max(out, slot, wp.abs(gas_pressure(law[p], J[p], gamma[p], p_atm)))
+    gauge = gas_pressure(law[p], J[p], gamma[p], p_atm)
+    wp.atomic_max(out, GAUGE_SLOT, wp.abs(gauge))
+    if cavity_gas[p] != 0 or p_atm + gauge < cavity_enter:
+        out[CAVITY_SLOT] = 1.0
 
 
 @wp.kernel
@@ -146,18 +237,22 @@ def gas_cell_expansion(
     vel_u: wp.array3d(dtype=float),
     vel_v: wp.array3d(dtype=float),
     vel_w: wp.array3d(dtype=float),
+    cavity: wp.array3d(dtype=wp.int32),
     target_div: wp.array3d(dtype=float),
     dx: float,
     dim: int,
     slot: int,
     out: wp.array(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """out[slot]: the largest |div u - d| (1/s, the gas's relative volume change rate) over gas cells,
     d the divergence the volume correction asked of the cell (target_div), which is not the gas's
     (gas_volume_rate leaves it out of J too): an incompressible gas's cells move only by d, and
-    counted as expansion it set 515 of 520 steps of a rising bubble (issue #12's 3D tank)."""
+    counted as expansion it set 515 of 520 steps of a rising bubble (issue #12's 3D tank).
+    Cavities' cells are not counted (physics/cavity.py: a near vacuum's volume is the room it is left)."""
     i, j, k = wp.tid()
-    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS:
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS or cavity[i, j, k] == CAVITY_GAS:
         return
     div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
     wp.atomic_max(out, slot, wp.abs(div / dx - target_div[i, j, k]))
@@ -179,6 +274,7 @@ class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
+    grid_box = True  # its grid kernels cover sim.region; outside it the gas arrays hold no gas
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)
@@ -192,6 +288,7 @@ class GasStage(Stage):
             column[up_axis] = 1
         f.ceiling = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
         self.sharp = sim.interface == INTERFACE_SHARP
+        self.cavities = Cavities(sim)  # near-vacuum gas: a pressure boundary (physics/cavity.py)
         if self.sharp and solver.liquid_velocity == "own":
             f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
@@ -202,6 +299,7 @@ class GasStage(Stage):
         # fastest relative volume change (1/s).
         sim.host_state["gas_gauge"] = np.full(1, np.nan)
         sim.host_state["gas_expansion_rate"] = np.zeros(1)
+        sim.host_state["gas_cavity"] = np.ones(1)  # 1: a cavity may exist this step (physics/cavity.py)
         sim.report_writers.append(self._write_report)
         sim.report_readers.append(self._read_report)
         mats = list(sim.scene.materials.values())
@@ -222,7 +320,9 @@ class GasStage(Stage):
             return self._limit[1]
         gauge = float(sim.host_state["gas_gauge"][0])
         if math.isnan(gauge):  # the first step (or an older checkpoint): measured once here
-            gauge = float(sim.read_host(self._measure_gauge(sim, wp.zeros(4, dtype=float, device=sim.device)))[2])
+            first = sim.read_host(self._measure_gauge(sim, wp.zeros(CAVITY_SLOT + 1, dtype=float, device=sim.device)))
+            gauge = float(first[GAUGE_SLOT])
+            sim.host_state["gas_cavity"][0] = float(first[CAVITY_SLOT])
         cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
         # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
         limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
@@ -238,20 +338,22 @@ class GasStage(Stage):
 
     def _measure_gauge(self, sim, out):
         p = sim.particles
-        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma,
-                                                 sim.scene.domain.ambient_pressure, 2, out])
+        ambient = sim.scene.domain.ambient_pressure
+        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma, p.cavity_gas, ambient,
+                                                 CAVITY_ENTER * ambient, out])
         return out
 
     def _write_report(self, sim):
         # The next step's limit from this step's end state, carried by the step's one read-back.
-        g, f = sim.grid, sim.fields
+        g, f, r = sim.grid, sim.fields, sim.region
         self._measure_gauge(sim, f.max_speed)
-        sim.launch(gas_cell_expansion, g.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.target_div, g.dx,
-                                                 g.dim, 3, f.max_speed])
+        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.cavity, f.target_div,
+                                                 g.dx, g.dim, RATE_SLOT, f.max_speed, r.lo])
 
     def _read_report(self, sim, report):
-        sim.host_state["gas_gauge"][0] = float(report[2])
-        sim.host_state["gas_expansion_rate"][0] = float(report[3])
+        sim.host_state["gas_gauge"][0] = float(report[GAUGE_SLOT])
+        sim.host_state["gas_expansion_rate"][0] = float(report[RATE_SLOT])
+        sim.host_state["gas_cavity"][0] = float(report[CAVITY_SLOT])
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -267,28 +369,34 @@ class GasStage(Stage):
                    [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
                     sim.scene.domain.ambient_pressure, sim.geometry,
                     f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
+        self.cavities.after_p2g(sim)
 
     def on_cells(self, sim, dt: float):
-        g, f = sim.grid, sim.fields
-        sim.launch(gk.classify_phases, g.cells,
-                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells])
+        f, r = sim.fields, sim.region
+        sim.launch(gk.classify_phases, r.cells,
+                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells, r.lo])
+        self.cavities.on_cells(sim)
         up_axis, up_sign = sim.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
-            f.ceiling.fill_(-1)
-            sim.launch(liquid_ceiling, g.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling])
+            f.ceiling.fill_(-1)  # (no liquid cell lies outside the box)
+            sim.launch(liquid_ceiling, r.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling, r.lo])
 
     def before_extend(self, sim, dt: float):
-        f = sim.fields
+        f, r = sim.fields, sim.region
+        self.cavities.before_extend(sim)
         if f.gas_vel is None:
             return
-        # The gas reads the shared projected field; the liquid keeps only its own faces, and the
-        # core extends that across the interface.
+        # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
+        # and the core extends that across the interface. (Outside the box both hold the empty state.)
         for a in sim.grid.axes:
-            wp.copy(f.gas_vel[a], f.vel[a])
-            wp.copy(f.gas_valid[a], f.valid[a])
-            sim.launch(gk.keep_phase_faces, sim.grid.face_shape(a),
-                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.gas_valid[a], f.valid[a]])
-        sim.extend(f.gas_vel, f.gas_valid)
+            sim.launch(keep_phase_faces, r.faces(a),
+                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
+                        r.lo])
+        # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
+        # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
+        # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field
+        # keeps the projected values, which nothing reads.
+        sim.extend(f.gas_vel, f.gas_valid, r.gas_box(sim.particles))
 
     def before_g2p(self, sim, dt: float):
         if not self.sharp:
@@ -297,10 +405,17 @@ class GasStage(Stage):
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
-        sim.launch(gas_volume_rate, g.cells,
-                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate])
+        box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
+        sim.launch(gas_volume_rate, box.cells,
+                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
         sim.launch(update_gas_J, p.count,
-                   [p.x, p.phase, p.active, f.gas_rate, sim.geometry, dt, p.J])
+                   [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
+        self.cavities.update_J(sim, dt)
+        ambient = sim.scene.domain.ambient_pressure
+        if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
+            sim.launch(limit_gas_pressure_spread, p.count,
+                       [p.x, p.phase, p.active, p.gas_law, p.gas_gamma, f.gas_volume, f.gas_pv, ambient,
+                        MAX_PRESSURE_SPREAD, sim.geometry, p.J])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles

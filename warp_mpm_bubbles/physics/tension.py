@@ -13,10 +13,10 @@ import math
 import warp as wp
 
 from ..core.geometry import GridGeometry
-from ..core.grid import INTERFACE_SHARP, PHASE_GAS
+from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
 from ..core.grid_kernels import (
-    block_offset, block_size, cell_centre, cell_of, cell_type_at, is_liquid_cell, is_phase_cell, is_solid, unit,
+    block_offset, block_size, cell_centre, cell_of, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
 from ..core.transfer_kernels import clamp_to_domain
 
@@ -24,41 +24,67 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float)):
-    """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface."""
+def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float),
+                     lo: wp.vec3i):
+    """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface.
+    (lo: the first index of the launch, which may cover a box, core/active_box.py; as below.)"""
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     level[i, j, k] = wp.clamp(2.0 * liq_volume[i, j, k] * inv_cell_vol - 1.0, -1.0, 1.0)
 
 
+@wp.func(inline=True)
+def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), x: int, y: int, z: int,
+                   centre: float):
+    """The level set at cell (x, y, z); a solid cell (or one beyond the arrays) mirrors `centre`, the
+    value at the cell that asks: a 90 degree contact."""
+    v = centre
+    if x >= 0 and y >= 0 and z >= 0 and x < types.shape[0] and y < types.shape[1] and z < types.shape[2]:
+        if not is_solid(types[x, y, z]):
+            v = level[x, y, z]
+    return v
+
+
 @wp.func
-def level_at(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, fallback: wp.vec3i):
-    """The level set at c; solid cells (and the array's edge) mirror `fallback`: a 90 degree contact."""
-    d = c
-    if is_solid(cell_type_at(types, c)):
-        d = fallback
-    return level[d[0], d[1], d[2]]
+def inner_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, centre: float):
+    """mirrored_level for a cell c inside the arrays (is_solid: a type >= SOLID_FREE_SLIP)."""
+    return wp.where(is_solid(types[c[0], c[1], c[2]]), centre, level[c[0], c[1], c[2]])
 
 
 @wp.kernel
 def smooth_level_set(
-    types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int, out: wp.array3d(dtype=float)
+    types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int, out: wp.array3d(dtype=float),
+    lo: wp.vec3i,
 ):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
-    capillary currents."""
+    capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
+    over block_offset(q) cost 6x the time); the weights sum to 4^dim. Only cells on the arrays' edge
+    check for neighbours outside them."""
     i, j, k = wp.tid()
-    c = wp.vec3i(i, j, k)
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     value = level[i, j, k]
     if is_solid(types[i, j, k]):
         out[i, j, k] = value
         return
+    edge = i == 0 or j == 0 or i == types.shape[0] - 1 or j == types.shape[1] - 1  # a neighbour is outside
+    if dim == 3 and (k == 0 or k == types.shape[2] - 1):
+        edge = True
     total = float(0.0)
-    weight = float(0.0)
-    for q in range(block_size(dim)):
-        o = block_offset(q, dim)
-        w = float((2 - wp.abs(o[0])) * (2 - wp.abs(o[1])) * (2 - wp.abs(o[2])))
-        total += w * level_at(level, types, c + o, c)
-        weight += w
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                if dim == 3 or c == 0:
+                    w = float((2 - wp.abs(a)) * (2 - wp.abs(b)) * (2 - wp.abs(c)))
+                    v = value
+                    if edge:
+                        v = mirrored_level(level, types, i + a, j + b, k + c, value)
+                    else:  # inner_level written out: as a call in this unrolled loop it cost 1.5x the kernel
+                        v = wp.where(types[i + a, j + b, k + c] >= SOLID_FREE_SLIP, value, level[i + a, j + b, k + c])
+                    total += w * v
+    weight = 64.0
+    if dim == 2:
+        weight = 32.0  # (the slab's block: z offset 0, weight factor 2)
     out[i, j, k] = total / weight
 
 
@@ -69,6 +95,7 @@ def surface_curvature(
     dx: float,
     dim: int,
     curvature: wp.array3d(dtype=float),
+    lo: wp.vec3i,
 ):
     """kappa = div(grad psi / |grad psi|), central differences, near the liquid's surface only.
 
@@ -77,6 +104,7 @@ def surface_curvature(
     to 1/dx, the largest curvature the grid can carry.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     c = wp.vec3i(i, j, k)
     curvature[i, j, k] = 0.0
     if is_solid(types[i, j, k]):
@@ -85,25 +113,27 @@ def surface_curvature(
         return
     if dim == 3 and (k == 0 or k == types.shape[2] - 1):
         return
-    p0 = level_at(level, types, c, c)
+    p0 = level[i, j, k]
     if wp.abs(p0) >= 0.99:
         return
     grad = wp.vec3(0.0)
     hess = wp.mat33(0.0)
-    for a in range(dim):
-        ea = unit(a)
-        pp = level_at(level, types, c + ea, c)
-        pm = level_at(level, types, c - ea, c)
-        grad[a] = (pp - pm) / (2.0 * dx)
-        hess[a, a] = (pp - 2.0 * p0 + pm) / (dx * dx)
-        for b in range(a + 1, dim):
-            eb = unit(b)
-            cross = (level_at(level, types, c + ea + eb, c)
-                     - level_at(level, types, c + ea - eb, c)
-                     - level_at(level, types, c - ea + eb, c)
-                     + level_at(level, types, c - ea - eb, c)) / (4.0 * dx * dx)
-            hess[a, b] = cross
-            hess[b, a] = cross
+    for a in range(3):  # constant loops (unrolled); the axes past dim are skipped; no neighbour is outside
+        if a < dim:
+            ea = unit(a)
+            pp = inner_level(level, types, c + ea, p0)
+            pm = inner_level(level, types, c - ea, p0)
+            grad[a] = (pp - pm) / (2.0 * dx)
+            hess[a, a] = (pp - 2.0 * p0 + pm) / (dx * dx)
+            for b in range(3):
+                if b > a and b < dim:
+                    eb = unit(b)
+                    cross = (inner_level(level, types, c + ea + eb, p0)
+                             - inner_level(level, types, c + ea - eb, p0)
+                             - inner_level(level, types, c - ea + eb, p0)
+                             + inner_level(level, types, c - ea - eb, p0)) / (4.0 * dx * dx)
+                    hess[a, b] = cross
+                    hess[b, a] = cross
     g2 = wp.dot(grad, grad)
     if g2 < 1.0e-12 / (dx * dx):
         return
@@ -124,6 +154,7 @@ def apply_surface_tension(
     dx: float,
     dt: float,
     vel: wp.array3d(dtype=float),
+    lo: wp.vec3i,
 ):
     """The pressure jump [p] = sigma kappa across the liquid's surface (Kang, Fedkiw & Liu 2000).
 
@@ -133,23 +164,24 @@ def apply_surface_tension(
     pressure operator is untouched. kappa is interpolated to where psi crosses zero.
     """
     i, j, k = wp.tid()
+    i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if inv_rho[i, j, k] == 0.0:
         return
     hi = wp.vec3i(i, j, k)
-    lo = hi - unit(axis)
-    liquid_lo = is_liquid_cell(types, phase, lo)
+    below = hi - unit(axis)
+    liquid_lo = is_liquid_cell(types, phase, below)
     liquid_hi = is_liquid_cell(types, phase, hi)
     if liquid_lo == liquid_hi:
         return
-    cl = lo
+    cl = below
     cn = hi
     orient = 1.0  # the jump p_hi - p_lo equals +sigma kappa when the liquid is on the low side
     if liquid_hi:
         cl = hi
-        cn = lo
+        cn = below
         orient = -1.0
-    psi_l = level_at(level, types, cl, cl)
-    psi_n = level_at(level, types, cn, cl)
+    psi_l = level[cl[0], cl[1], cl[2]]  # (a liquid cell: not solid)
+    psi_n = mirrored_level(level, types, cn[0], cn[1], cn[2], psi_l)
     theta = float(0.5)
     if psi_l - psi_n > 1.0e-6:
         theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)
@@ -158,10 +190,34 @@ def apply_surface_tension(
 
 
 @wp.func
+def level_at_point(level: wp.array3d(dtype=float), x: wp.vec3, origin: wp.vec3, dx: float, dim: int):
+    """The level set at point x, (bi/tri)linear between the cell centres around it."""
+    q = (x - origin) / dx - wp.vec3(0.5, 0.5, 0.5)
+    b = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+    f = q - wp.vec3(float(b[0]), float(b[1]), float(b[2]))
+    nk = 2
+    if dim == 2:  # the slab's one layer
+        nk = 1
+        b[2] = 0
+    total = float(0.0)
+    for i in range(2):
+        for j in range(2):
+            for k in range(nk):
+                c = wp.vec3i(wp.clamp(b[0] + i, 0, level.shape[0] - 1), wp.clamp(b[1] + j, 0, level.shape[1] - 1),
+                             wp.clamp(b[2] + k, 0, level.shape[2] - 1))
+                w = wp.where(i == 1, f[0], 1.0 - f[0]) * wp.where(j == 1, f[1], 1.0 - f[1])
+                if dim == 3:
+                    w = w * wp.where(k == 1, f[2], 1.0 - f[2])
+                total += w * level[c[0], c[1], c[2]]
+    return total
+
+
+@wp.func
 def film_target(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -171,12 +227,17 @@ def film_target(
     particle in a liquid cell with gas cells in its 3^d neighbourhood (a bubble's skirt or rim thinner
     than a cell) moves towards them (their gas-volume-weighted centre) at `capillary_speed`, the
     Taylor-Culick speed of a film one cell thick, sqrt(2 sigma / (rho_l dx)) (thinner films retract
-    faster), at most a quarter cell a step."""
+    faster), at most a quarter cell a step. Only gas on the liquid's side of the interface, where the
+    smoothed liquid level set the curvature reads is positive, is a film: gas on the bubble's side in
+    a cell the interface crosses is the resolved bubble (retracted, it piled into the bubble and left
+    the interface's cells under-filled, 0.92, with holes: issue #12)."""
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
     c = cell_of(xp, origin, dx)
     if not is_liquid_cell(types, phase_cells, c):
+        return xp
+    if level_at_point(level, xp, origin, dx, dim) <= 0.0:
         return xp
     pull = wp.vec3(0.0)
     for q in range(block_size(dim)):
@@ -216,6 +277,7 @@ def film_departures(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -231,7 +293,7 @@ def film_departures(
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
     c = cell_of(xp, geo.origin, geo.dx)
-    if other_cell(film_target(types, phase_cells, gas_volume, capillary_speed, geo, dt, xp), c, geo):
+    if other_cell(film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp), c, geo):
         wp.atomic_add(leaving, c[0], c[1], c[2], 1)
         wp.atomic_min(first, c[0], c[1], c[2], p)
 
@@ -241,6 +303,7 @@ def retract_gas_films(
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
+    level: wp.array3d(dtype=float),
     capillary_speed: float,
     geo: GridGeometry,
     dt: float,
@@ -266,7 +329,7 @@ def retract_gas_films(
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
     dx = geo.dx
     c = cell_of(xp, geo.origin, dx)
-    target = film_target(types, phase_cells, gas_volume, capillary_speed, geo, dt, xp)
+    target = film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp)
     if other_cell(target, c, geo) and leaving[c[0], c[1], c[2]] >= count[c[0], c[1], c[2]]:
         if first[c[0], c[1], c[2]] == p:  # the cell's last particle: stays, at the side facing its bubble
             lo = cell_centre(c, geo.origin, dx) - wp.vec3(0.49 * dx)
@@ -283,6 +346,7 @@ class TensionStage(Stage):
     name = "surface_tension"
     timer = "tension"
     limit = "capillary"
+    grid_box = True  # the force covers sim.region: outside it psi = -1, kappa = 0 and no face is active
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)
@@ -292,6 +356,7 @@ class TensionStage(Stage):
         self.rho_liquid = max(m.density for m in liquids)
         self.rho_gas = max((m.density for m in materials if m.is_gas), default=0.0)
         self.curvature, self.level, self.level_tmp = (sim.fields.cells() for _ in range(3))
+        self.smoothed = self.level  # force() names the buffer its smoothing ends in
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
         # interface they retract into their bubble, at the Taylor-Culick speed of a one-cell film.
         self.retract_films = (sim.has_gas and sim.interface == INTERFACE_SHARP
@@ -316,25 +381,26 @@ class TensionStage(Stage):
         return math.sqrt((self.rho_liquid + self.rho_gas) * sim.grid.dx**3 / (4.0 * math.pi * self.sigma))
 
     def force(self, sim, dt: float):
-        g, f = sim.grid, sim.fields
+        g, f, r = sim.grid, sim.fields, sim.region
         level, smoothed = self.level, self.level_tmp
-        sim.launch(liquid_level_set, g.cells, [f.liq_volume, 1.0 / g.dx**3, level])
+        sim.launch(liquid_level_set, r.cells, [f.liq_volume, 1.0 / g.dx**3, level, r.lo])
         for _ in range(LEVEL_SET_SMOOTHING):
-            sim.launch(smooth_level_set, g.cells, [f.types, level, g.dim, smoothed])
+            sim.launch(smooth_level_set, r.cells, [f.types, level, g.dim, smoothed, r.lo])
             level, smoothed = smoothed, level
-        sim.launch(surface_curvature, g.cells, [f.types, level, g.dx, g.dim, self.curvature])
+        sim.launch(surface_curvature, r.cells, [f.types, level, g.dx, g.dim, self.curvature, r.lo])
+        self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
-            sim.launch(apply_surface_tension, g.face_shape(a),
-                       [f.types, f.phase_cells, level, self.curvature, f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a]])
+            sim.launch(apply_surface_tension, r.faces(a), [f.types, f.phase_cells, level, self.curvature,
+                                                           f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a], r.lo])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
-        self.count.zero_()
-        self.leaving.zero_()
-        self.first.fill_(2**31 - 1)
-        films = [f.types, f.phase_cells, f.gas_volume, self.film_speed, sim.geometry, dt]
-        sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
-        if self.hold_films:
+        self.first.fill_(2**31 - 1)  # no particle is a cell's first: without holding, none is held back
+        films = [f.types, f.phase_cells, f.gas_volume, self.smoothed, self.film_speed, sim.geometry, dt]
+        if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
+            self.count.zero_()
+            self.leaving.zero_()
+            sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
             sim.launch(film_departures, p.count, [*films, p.x, p.phase, p.active, self.leaving, self.first])
         sim.launch(retract_gas_films, p.count,
                    [*films, self.count, self.leaving, self.first, p.x, p.phase, p.active])

@@ -1,0 +1,63 @@
+"""The CPU's cores: Warp runs a CPU launch on one thread, so the step's large launches are split into
+parts that run at once, one launch per thread (Warp releases Python's lock while a CPU kernel runs).
+The parts are chosen so that the results do not depend on how many there are:
+- g2p: ranges of particles, which are independent (only their largest speed is combined, exactly);
+- p2g: disjoint slabs of grid nodes along x, each part visiting the particles in the same order, so
+  every node sums its contributions in particle order whatever the split;
+- the grid stages and the V-cycle's smoothing, restriction and prolongation over a large box (lines
+  of cells, core/lines.py): slabs of lines, for kernels that write only the cells they walk. The
+  pressure system's assembly and the CG's dot products accumulate sums, and stay one launch.
+
+Threads: `WARP_MPM_CPU_THREADS` if set (1: one launch, as before), else the cores this process may
+use, at most MAX_THREADS. On a GPU there is one launch.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+MAX_THREADS = 8  # p2g's parts each scan every particle's position: the scan's share grows with the count
+# A launch over a box this large (cells or faces) runs in slabs, one a thread: smaller ones cost less
+# than the hand-off (about 30 us a launch; a 40^3 box's red-black half-sweep takes about 500 us).
+SPLIT_CELLS = 16384
+
+
+def cpu_threads() -> int:
+    """Threads for CPU transfers: WARP_MPM_CPU_THREADS, else the usable cores (at most MAX_THREADS)."""
+    value = os.environ.get("WARP_MPM_CPU_THREADS")
+    if value is not None:
+        try:
+            n = int(value)
+        except ValueError:
+            raise ValueError(f"WARP_MPM_CPU_THREADS={value!r} is not a whole number: set it to 1 or more, "
+                             f"or unset it to use every core") from None
+        if n < 1:
+            raise ValueError(f"WARP_MPM_CPU_THREADS={n}: set it to 1 or more, or unset it to use every core")
+        return n
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_THREADS))
+
+
+class Parallel:
+    """Runs a list of calls (each one kernel launch) at once on `threads` threads, the first on the
+    calling thread; one thread: one after the other."""
+
+    def __init__(self, threads: int):
+        self.threads = threads
+        self._pool = ThreadPoolExecutor(threads - 1, thread_name_prefix="warp_mpm_cpu") if threads > 1 else None
+
+    def run(self, calls):
+        if self._pool is None or len(calls) == 1:
+            for call in calls:
+                call()
+            return
+        pending = [self._pool.submit(call) for call in calls[1:]]
+        calls[0]()
+        for done in pending:
+            done.result()
+
+
+def split(lo: int, hi: int, parts: int) -> list[int]:
+    """parts + 1 boundaries from lo to hi, as even as whole numbers allow."""
+    return [lo + (hi - lo) * q // parts for q in range(parts + 1)]

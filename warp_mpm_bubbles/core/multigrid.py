@@ -478,8 +478,9 @@ class MultigridPreconditioner:
 
         for lvl in range(last):
             smoothing(lvl, (0, 1))
-            stages.append(self._parts(restrict_residual, lvl + 1,
-                                      lambda walk: [L[lvl], L[lvl + 1], walk, b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]]))
+            stages.append(self._parts(restrict_residual, lvl + 1,  # its work: the finer level's cells
+                                      lambda walk: [L[lvl], L[lvl + 1], walk, b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]],
+                                      work_level=lvl))
         stages.append([self._record(solve_coarsest, 1, [L[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])])
         for lvl in range(last - 1, -1, -1):
             stages.append(self._parts(prolongate, lvl, lambda walk: [L[lvl], walk, x[lvl + 1], x[lvl]]))
@@ -489,9 +490,12 @@ class MultigridPreconditioner:
     def _record(self, kernel, dims, inputs):
         return wp.launch(kernel, dims, inputs=inputs, device=self.device, record_cmd=True)
 
-    def _parts(self, kernel, lvl, inputs):
+    def _parts(self, kernel, lvl, inputs, work_level=None):
         """Recorded launches of `kernel` over level lvl's box, split into one slab per thread along
-        axis 0 when the box has threads.SPLIT_CELLS cells or more (each launch costs a thread hand-off)."""
+        axis 0 when the cells it works on (level work_level's box, by default lvl's) number
+        threads.SPLIT_CELLS or more (each launch costs a thread hand-off)."""
         walk, dims = self.levels[lvl].box, self.dims[lvl]
-        parts = self.parallel.threads if math.prod(dims) * walk.length >= threads.SPLIT_CELLS else 1
+        w = lvl if work_level is None else work_level
+        work = math.prod(self.dims[w]) * self.levels[w].box.length
+        parts = self.parallel.threads if work >= threads.SPLIT_CELLS else 1
         return [self._record(kernel, d, inputs(w)) for w, d in split_lines(walk, dims, parts)]

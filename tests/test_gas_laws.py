@@ -90,9 +90,12 @@ def test_adiabatic_bubble_breathes_at_the_minnaert_frequency_with_gamma(tmp_path
 def test_rising_bubble_volume_follows_its_gas_law(tmp_path, eos):
     # A 2 cm bubble in 0.14 m of water rises for 0.1 s (test_gas.py's scene). Incompressible gas
     # (kappa = 0, fixed density): measured |V/V0 - 1| at most 2.3e-4 over six frames (seeds 0, 1).
-    # Isothermal: V/V0 = p_atm / (p_atm + rho g depth), depth of the gas centroid at the end:
-    # measured +0.03%, +0.01% of that (the 1% compression by the head). Bounds 0.1% of the volume:
-    # a tenth of the compression the isothermal bubble shows, which an incompressible gas must not.
+    # Isothermal: V/V0 = p_atm / (p_atm + rho g depth), depth of the gas centroid at the end. The
+    # bubble breathes (+-0.2% from step to step, its Minnaert period near the step), so one sample
+    # is a draw from that: the mean over the last frame's steps is the volume the law sets,
+    # measured +0.027%, +0.047%, +0.056% of it (seeds 0, 1, 2; the last step alone +0.10%, -0.03%,
+    # -0.00%). Bounds 0.1% of the volume: a tenth of the compression the isothermal bubble shows
+    # (the 1% head), which an incompressible gas must not.
     dx = 0.08 / 32
     scene = Scene(domain=Domain(size=(0.08, 0.16), cell_size=dx),
                   materials={"water": Material("water"), "air": gas(eos)},
@@ -100,20 +103,20 @@ def test_rising_bubble_volume_follows_its_gas_law(tmp_path, eos):
                   output=Output(path=str(tmp_path / "r.usdc"), fps=60))
     sim = Simulation(scene, "cpu")
     v0 = sim.gas_budget()["volume"]
-    ratios = []
-    for _ in range(6):
-        sim.advance_frame()
+    ratios, last_frame = [], []
+    for frame in range(6):
+        sim.advance_frame((lambda dt, rest: last_frame.append(sim.gas_budget()["volume"] / v0)) if frame == 5 else None)
         ratios.append(sim.gas_budget()["volume"] / v0)
     p = sim.particles_numpy()
     centroid = p["positions"][p["material"] == 1, 1].mean()
     expected = 1.0 if eos == "incompressible" else P_ATM / (P_ATM + 1000.0 * G * (0.14 - centroid))
-    print(f"{eos} rising bubble: V/V0 per frame {np.round(ratios, 5)}, expected at the end {expected:.5f}, "
-          f"risen {1000 * (centroid - 0.03):.1f} mm")
+    print(f"{eos} rising bubble: V/V0 per frame {np.round(ratios, 5)}, over the last frame's steps "
+          f"{np.mean(last_frame):.5f}, expected at the end {expected:.5f}, risen {1000 * (centroid - 0.03):.1f} mm")
     assert centroid > 0.03 + 0.01  # it rose (measured 16-18 mm)
     if eos == "incompressible":
         assert np.abs(np.array(ratios) - 1.0).max() < 1e-3
     else:
-        assert ratios[-1] == pytest.approx(expected, abs=1e-3)
+        assert np.mean(last_frame) == pytest.approx(expected, abs=1e-3)
 
 
 # ------------------------------------------------ ghost-fluid face weight: water under a gas layer

@@ -225,6 +225,16 @@ def at(a: wp.array3d(dtype=float), c: wp.vec3i):
 
 
 @wp.func
+def face_trusted(valid: wp.array3d(dtype=wp.int32), c: wp.vec3i):
+    """valid[c] == 1, false for a face outside the array."""
+    if c[0] < 0 or c[1] < 0 or c[2] < 0:
+        return False
+    if c[0] >= valid.shape[0] or c[1] >= valid.shape[1] or c[2] >= valid.shape[2]:
+        return False
+    return valid[c[0], c[1], c[2]] == 1
+
+
+@wp.func
 def is_phase_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i, which: int):
     """A fluid cell of phase `which` (cells outside the array are not)."""
     if cell_type_at(types, c) == FLUID:  # nested: Warp evaluates both sides of `and`

@@ -711,11 +711,9 @@ def extrapolate_velocity_at(
     for a in range(dim):
         for s in range(2):
             c = wp.vec3i(i, j, k) + (2 * s - 1) * unit(a)
-            if c[0] >= 0 and c[1] >= 0 and c[2] >= 0:
-                if c[0] < vel_in.shape[0] and c[1] < vel_in.shape[1] and c[2] < vel_in.shape[2]:
-                    if valid_in[c[0], c[1], c[2]] == 1:
-                        total += vel_in[c[0], c[1], c[2]]
-                        n += 1
+            if face_trusted(valid_in, c):
+                total += at(vel_in, c)
+                n += 1
     if n > 0:
         vel_out[i, j, k] = total / float(n)
         valid_out[i, j, k] = 1

@@ -154,56 +154,6 @@ def keep_phase_faces(
         valid[i, j, k] = trusted
 
 
-@wp.kernel
-def extend_liquid_linearly(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    axis: int,
-    dim: int,
-    vel: wp.array3d(dtype=float),
-    valid: wp.array3d(dtype=wp.int32),
-    vel_out: wp.array3d(dtype=float),
-    valid_out: wp.array3d(dtype=wp.int32),
-    lo: wp.vec3i,
-):
-    """The first layer of the liquid's own field inside the gas: its shear extrapolated linearly.
-
-    An untrusted face touching a gas cell takes the mean, over the directions across the face's
-    own axis along which the next two faces are trusted liquid faces u1 (near) and u2 (far), of
-    2 u1 - u2; a face with no such pair is left to the core's constant extension. The constant
-    extension flattens the liquid's shear at the interface, so the APIC matrices of the liquid
-    particles beside a bubble lose it every step: a loss per step that slowed the rise as steps
-    shrank (docs/convergence.md). Along the face's own axis (the normal strain, which the
-    divergence ties to the normal velocity the phases share) it stays constant: extrapolating a
-    breathing bubble's 1/r inflow linearly raised its transient currents by 40%
-    (tests/test_tension.py). Ping-pong buffers keep the result independent of thread order.
-    """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    vel_out[i, j, k] = vel[i, j, k]
-    valid_out[i, j, k] = valid[i, j, k]
-    if valid[i, j, k] == 1:
-        return
-    hi = wp.vec3i(i, j, k)
-    if not (gk.is_phase_cell(types, phase, hi - unit(axis), PHASE_GAS) or gk.is_phase_cell(types, phase, hi, PHASE_GAS)):
-        return
-    total = float(0.0)
-    n = int(0)
-    for b in range(dim):
-        if b == axis:
-            continue
-        for s in range(2):
-            step = (2 * s - 1) * unit(b)
-            c1 = hi + step
-            c2 = c1 + step
-            if gk.face_trusted(valid, c1) and gk.face_trusted(valid, c2):
-                total += 2.0 * gk.at(vel, c1) - gk.at(vel, c2)
-                n += 1
-    if n > 0:
-        vel_out[i, j, k] = total / float(n)
-        valid_out[i, j, k] = 1
-
-
 # ------------------------------------------------------------------------------ pressure spread
 MAX_PRESSURE_SPREAD = 10.0  # a gas particle's pressure, at most this many times its cells' (absolute)
 SPREAD_GATE = MAX_PRESSURE_SPREAD - 1.0  # checked only while some gas is a cavity's or this far above ambient
@@ -442,11 +392,6 @@ class GasStage(Stage):
             sim.launch(keep_phase_faces, r.faces(a),
                        [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
                         r.lo])
-            sim.launch(extend_liquid_linearly, r.faces(a),
-                       [f.types, f.phase_cells, a, sim.grid.dim, f.vel[a], f.valid[a], f.vel_tmp[a], f.valid_tmp[a],
-                        r.lo])
-            f.vel[a], f.vel_tmp[a] = f.vel_tmp[a], f.vel[a]
-            f.valid[a], f.valid_tmp[a] = f.valid_tmp[a], f.valid[a]
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
         # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
         # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field

@@ -1,0 +1,86 @@
+"""The Laplace jump of a resting bubble in a filled tank, per resolution (issue #12's open 2D drift).
+
+    python benchmarks/static_bubble_laplace.py                         # 5 / 10 / 20 / 40 cells per radius: ~2 min
+    python benchmarks/static_bubble_laplace.py --resolutions 20,40,80
+
+Hysing's test case 1 fluids (benchmarks/convergence.py's hysing_2d, the same scaling by 10: liquid
+rho 100, mu 1; incompressible gas rho 10, mu 0.1; sigma 2.45) with no gravity: a disc of radius 0.25
+at rest in a 1 x 1 tank, no-slip walls, to t = 0.3 s (the capillary time sqrt(rho R^3 / sigma) is
+0.8 s; viscosity damps the start-up in about 0.1 s). Sampled 6 times: the pressure jump, the mean
+pressure inside (r < R - 2 dx) minus that outside (R + 2 dx < r < 0.45), over sigma / R, and the
+fastest particle (the spurious currents). The jump's error should shrink with the grid; the rising
+bubble's late drift (docs/convergence.md) is the reason to look. Writes
+benchmarks/results/static_bubble_laplace.{json,md}. A measurement, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # this checkout's package, not an installed one
+
+from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere  # noqa: E402
+from warp_mpm_bubbles.core.simulation import Simulation  # noqa: E402
+
+SCALE, R, T_END, SAMPLES = 0.1, 0.25, 0.3, 6
+SIGMA = 24.5 * SCALE
+
+
+def run(cells_across: int, device: str) -> dict:
+    fluids = {"liquid": Material("liquid", density=1000 * SCALE, viscosity=10 * SCALE, surface_tension=SIGMA),
+              "bubble": Material("bubble", kind="gas", density=100 * SCALE, viscosity=1 * SCALE, eos="incompressible")}
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = Scene(domain=Domain(size=(1.0, 1.0), cell_size=1.0 / cells_across, walls="no_slip", gravity=(0.0, 0.0)),
+                      materials=fluids, shapes=[Box("liquid", (0.0, 0.0), (1.0, 1.0)), Sphere("bubble", (0.5, 0.5), R)],
+                      solver=SolverSettings(), output=Output(path=f"{tmp}/s.usdc"), name="static_bubble")
+        sim = Simulation(scene, device)
+        start, jumps, speeds = time.perf_counter(), [], []
+        for k in range(1, SAMPLES + 1):
+            sim.advance_to(T_END * k / SAMPLES)
+            centres = sim.grid.cell_centres()[sim.grid.interior_slice()][:, :, 0, :2]
+            r = np.linalg.norm(centres - 0.5, axis=-1)
+            p, dx = sim.pressure_numpy()[:, :, 0], sim.grid.dx
+            jump = p[r < R - 2 * dx].mean() - p[(r > R + 2 * dx) & (r < 0.45)].mean()
+            jumps.append(float(jump / (SIGMA / R) - 1.0))
+            speeds.append(float(np.linalg.norm(sim.particles_numpy()["velocities"], axis=1).max()))
+        return {"cells_across": cells_across, "cells_per_radius": cells_across * R, "steps": sim.stats.steps,
+                "wall_s": time.perf_counter() - start, "jump_error": jumps, "max_speed": speeds,
+                # the last half of the run, after the start-up
+                "jump_error_settled": float(np.mean(jumps[SAMPLES // 2:]))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--resolutions", default="20,40,80,160", help="cells across the tank (4x the cells per radius)")
+    ap.add_argument("--device", default="cpu")
+    args = ap.parse_args()
+    rows = []
+    for n in (int(v) for v in args.resolutions.split(",")):
+        rows.append(run(n, args.device))
+        row = rows[-1]
+        print(f"{row['cells_per_radius']:g} cells per radius: jump error {100 * row['jump_error_settled']:+.2f}% "
+              f"(samples {', '.join(f'{100 * e:+.2f}' for e in row['jump_error'])}), "
+              f"fastest particle {max(row['max_speed']):.4f} m/s, {row['steps']} steps, {row['wall_s']:.0f} s", flush=True)
+    out = ROOT / "benchmarks" / "results"
+    meta = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "command": "python benchmarks/static_bubble_laplace.py --resolutions " + args.resolutions, "rows": rows}
+    (out / "static_bubble_laplace.json").write_text(json.dumps(meta, indent=1))
+    lines = ["# Laplace jump of a resting bubble in a filled tank", "", f"{meta['date']}, `{meta['command']}`", "",
+             "| cells per radius | jump error, settled (t = 0.15-0.3 s) | fastest particle, m/s | steps |",
+             "|---:|---:|---:|---:|"]
+    lines += [f"| {r['cells_per_radius']:g} | {100 * r['jump_error_settled']:+.2f}% | {max(r['max_speed']):.4f} | {r['steps']} |"
+              for r in rows]
+    (out / "static_bubble_laplace.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

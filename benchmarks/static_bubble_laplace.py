@@ -1,6 +1,6 @@
 """The Laplace jump of a resting bubble in a filled tank, per resolution (issue #12's open 2D drift).
 
-    python benchmarks/static_bubble_laplace.py                         # 5 / 10 / 20 / 40 cells per radius: ~2 min
+    python benchmarks/static_bubble_laplace.py                         # 5 / 10 / 20 / 40 cells per radius: ~1 min
     python benchmarks/static_bubble_laplace.py --resolutions 20,40,80
 
 Hysing's test case 1 fluids (benchmarks/convergence.py's hysing_2d, the same scaling by 10: liquid

@@ -42,11 +42,17 @@ def block_offset(q: int, dim: int):
 
 
 @wp.func
+def inside(a: wp.array3d(dtype=wp.int32), c: wp.vec3i):
+    """Index c lies inside array a."""
+    if c[0] < 0 or c[1] < 0 or c[2] < 0:
+        return False
+    return c[0] < a.shape[0] and c[1] < a.shape[1] and c[2] < a.shape[2]
+
+
+@wp.func
 def cell_type_at(types: wp.array3d(dtype=wp.int32), c: wp.vec3i):
     """Type of cell c; outside the array counts as a free-slip solid."""
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return SOLID_FREE_SLIP
-    if c[0] >= types.shape[0] or c[1] >= types.shape[1] or c[2] >= types.shape[2]:
+    if not inside(types, c):
         return SOLID_FREE_SLIP
     return types[c[0], c[1], c[2]]
 
@@ -227,9 +233,7 @@ def at(a: wp.array3d(dtype=float), c: wp.vec3i):
 @wp.func
 def face_trusted(valid: wp.array3d(dtype=wp.int32), c: wp.vec3i):
     """valid[c] == 1, false for a face outside the array."""
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return False
-    if c[0] >= valid.shape[0] or c[1] >= valid.shape[1] or c[2] >= valid.shape[2]:
+    if not inside(valid, c):
         return False
     return valid[c[0], c[1], c[2]] == 1
 

@@ -58,13 +58,24 @@ def run(cells_across: int, device: str) -> dict:
                 "jump_error_settled": float(np.mean(jumps[SAMPLES // 2:]))}
 
 
+def cells_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or min(values) < 8:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected whole numbers >= 8 separated by commas, e.g. 20,40,80")
+    return values
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--resolutions", default="20,40,80,160", help="cells across the tank (4x the cells per radius)")
+    ap.add_argument("--resolutions", default="20,40,80,160", type=cells_list,
+                    help="cells across the tank, comma-separated whole numbers >= 8 (4x the cells per radius)")
     ap.add_argument("--device", default="cpu")
     args = ap.parse_args()
     rows = []
-    for n in (int(v) for v in args.resolutions.split(",")):
+    for n in args.resolutions:
         rows.append(run(n, args.device))
         row = rows[-1]
         print(f"{row['cells_per_radius']:g} cells per radius: jump error {100 * row['jump_error_settled']:+.2f}% "
@@ -72,7 +83,8 @@ def main() -> None:
               f"fastest particle {max(row['max_speed']):.4f} m/s, {row['steps']} steps, {row['wall_s']:.0f} s", flush=True)
     out = ROOT / "benchmarks" / "results"
     meta = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "command": "python benchmarks/static_bubble_laplace.py --resolutions " + args.resolutions, "rows": rows}
+            "command": "python benchmarks/static_bubble_laplace.py --resolutions " + ",".join(map(str, args.resolutions)),
+            "rows": rows}
     (out / "static_bubble_laplace.json").write_text(json.dumps(meta, indent=1))
     lines = ["# Laplace jump of a resting bubble in a filled tank", "", f"{meta['date']}, `{meta['command']}`", "",
              "| cells per radius | jump error, settled (t = 0.15-0.3 s) | fastest particle, m/s | steps |",

@@ -6,6 +6,8 @@ Face ``f`` along axis ``a`` separates cell ``f - e_a`` (its low side) and cell `
 Array-edge faces have a missing neighbour; they are treated as solid.
 """
 
+from typing import Any
+
 import warp as wp
 
 from .grid import (
@@ -42,8 +44,8 @@ def block_offset(q: int, dim: int):
 
 
 @wp.func
-def inside(a: wp.array3d(dtype=wp.int32), c: wp.vec3i):
-    """Index c lies inside array a."""
+def inside(a: wp.array3d(dtype=Any), c: wp.vec3i):
+    """Index c lies inside array a (any dtype: one definition per dtype used)."""
     if c[0] < 0 or c[1] < 0 or c[2] < 0:
         return False
     return c[0] < a.shape[0] and c[1] < a.shape[1] and c[2] < a.shape[2]
@@ -99,9 +101,7 @@ def momentum_to_velocity_at(
 
 @wp.func
 def volume_fraction(cell_volume: wp.array3d(dtype=float), c: wp.vec3i, inv_cell_vol: float):
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return 0.0
-    if c[0] >= cell_volume.shape[0] or c[1] >= cell_volume.shape[1] or c[2] >= cell_volume.shape[2]:
+    if not inside(cell_volume, c):
         return 0.0
     return cell_volume[c[0], c[1], c[2]] * inv_cell_vol
 

@@ -28,7 +28,7 @@ import math
 import warp as wp
 
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
-from ..core.grid_kernels import cell_type_at, is_solid, unit
+from ..core.grid_kernels import cell_type_at, inside, is_solid, unit
 from ..core.pressure import SolveInfo
 
 wp.set_module_options({"enable_backward": False})
@@ -39,9 +39,7 @@ OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
 @wp.func
 def value_at(x: wp.array3d(dtype=float), g: wp.vec3i):
     """x[g], 0 outside the array."""
-    if g[0] < 0 or g[1] < 0 or g[2] < 0:
-        return 0.0
-    if g[0] >= x.shape[0] or g[1] >= x.shape[1] or g[2] >= x.shape[2]:
+    if not inside(x, g):
         return 0.0
     return x[g[0], g[1], g[2]]
 

@@ -16,7 +16,7 @@ from ..core.geometry import GridGeometry
 from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
 from ..core.grid_kernels import (
-    block_offset, block_size, cell_centre, cell_of, is_liquid_cell, is_phase_cell, is_solid, unit,
+    block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
 from ..core.transfer_kernels import clamp_to_domain
 
@@ -39,7 +39,7 @@ def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.in
     """The level set at cell (x, y, z); a solid cell (or one beyond the arrays) mirrors `centre`, the
     value at the cell that asks: a 90 degree contact."""
     v = centre
-    if x >= 0 and y >= 0 and z >= 0 and x < types.shape[0] and y < types.shape[1] and z < types.shape[2]:
+    if inside(types, wp.vec3i(x, y, z)):
         if not is_solid(types[x, y, z]):
             v = level[x, y, z]
     return v

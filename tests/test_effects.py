@@ -50,7 +50,7 @@ def test_each_effect_adds_only_its_own_stages(tmp_path):
     assert sim.effects == ["colliders", "surface_tension", "emitters"]
     extra = set(sim.launches) - set(run_steps(base).launches) - VOID_SEARCH  # the stream covers the air below it
     assert extra == {"inside_any_collider", "mark_collider_cells", "push_out_of_colliders",  # static: no faces
-                     "liquid_level_set", "smooth_level_set", "height_fraction", "surface_curvature",
+                     "liquid_level_set", "smooth_level_set", "height_fraction", "column_heights", "surface_curvature",
                      "average_curvature", "apply_surface_tension"}
     assert sim.timer.stages_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]
 

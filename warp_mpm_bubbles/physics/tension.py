@@ -99,14 +99,18 @@ def height_fraction(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(
     column sums would turn into curvature noise. Beside air, L / V: air holds no particles to share with."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    c = wp.vec3i(i, j, k)
-    beside_air = bool(False)
-    for q in range(block_size(dim)):
-        n = c + block_offset(q, dim)
-        if inside(types, n):
-            if types[n[0], n[1], n[2]] == EMPTY:
-                beside_air = True
     liquid = liq_volume[i, j, k]
+    if liquid == 0.0:  # -1 either way: no neighbourhood to look at (most of a box around a splash)
+        fraction[i, j, k] = -1.0
+        return
+    beside_air = bool(False)
+    nx, ny, nz = types.shape[0] - 1, types.shape[1] - 1, types.shape[2] - 1
+    for a in range(-1, 2):  # constant loops, unrolled; a neighbour beyond the arrays clamps onto the block
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                if dim == 3 or c == 0:
+                    if types[wp.clamp(i + a, 0, nx), wp.clamp(j + b, 0, ny), wp.clamp(k + c, 0, nz)] == EMPTY:
+                        beside_air = True
     total = liquid
     if has_gas != 0:
         total += gas_volume[i, j, k]
@@ -120,35 +124,57 @@ COLUMN_HALF = 3  # a height column spans 2 * 3 + 1 cells: the splat's 1.5 cells 
 
 
 @wp.func
+def boxed_fraction(fraction: wp.array3d(dtype=float), q: wp.vec3i, lo: wp.vec3i, hi: wp.vec3i):
+    """The fraction at q; outside the launch box [lo, hi), which holds no liquid (core/active_box.py),
+    psi = -1 without reading it."""
+    psi = float(-1.0)
+    if q[0] >= lo[0] and q[1] >= lo[1] and q[2] >= lo[2] and q[0] < hi[0] and q[1] < hi[1] and q[2] < hi[2]:
+        psi = fraction[q[0], q[1], q[2]]
+    return psi
+
+
+@wp.func
 def column_height(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, axis: int,
                   lo: wp.vec3i, hi: wp.vec3i):
-    """The liquid's height in the column of 2 COLUMN_HALF + 1 cells along `axis` centred on c, in cells:
-    the sum of the liquid fraction (psi + 1) / 2. Cells outside the launch box [lo, hi) hold no
-    liquid (core/active_box.py) and count as psi = -1 without being read. Valid (the second value 1)
-    when the column lies in the arrays, crosses no solid, and ends on opposite sides of the surface."""
+    """The liquid's height in the column of 2 COLUMN_HALF + 1 cells along `axis` centred on c, in cells
+    (-1: not valid): the sum of the liquid fraction (psi + 1) / 2. Valid when the column lies in the
+    arrays, ends on opposite sides of the surface (checked first: most columns do not) and crosses
+    no solid."""
     e = unit(axis)
     first = c - e * COLUMN_HALF
     last = c + e * COLUMN_HALF
     if not (inside(types, first) and inside(types, last)):
-        return wp.vec2(0.0, 0.0)
+        return -1.0
+    if boxed_fraction(fraction, first, lo, hi) * boxed_fraction(fraction, last, lo, hi) >= -0.25:
+        return -1.0
     total = float(0.0)
     solid = int(0)
-    ends = float(1.0)
     for s in range(-COLUMN_HALF, COLUMN_HALF + 1):
         q = c + e * s
-        psi = float(-1.0)
-        if q[0] >= lo[0] and q[1] >= lo[1] and q[2] >= lo[2] and q[0] < hi[0] and q[1] < hi[1] and q[2] < hi[2]:
-            psi = fraction[q[0], q[1], q[2]]
         solid += int(is_solid(types[q[0], q[1], q[2]]))
-        total += 0.5 * (psi + 1.0)
-        if s == -COLUMN_HALF or s == COLUMN_HALF:
-            ends = ends * psi
-    return wp.vec2(total, float(solid == 0 and ends < -0.25))
+        total += 0.5 * (boxed_fraction(fraction, q, lo, hi) + 1.0)
+    if solid > 0:
+        return -1.0
+    return total
+
+
+@wp.kernel
+def column_heights(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), dim: int,
+                   lo: wp.vec3i, hi: wp.vec3i, heights: wp.array3d(dtype=wp.vec3), start: wp.vec3i):
+    """Per cell, the column_height along each axis (-1 where the column is not valid; a height is
+    >= 0). Launched over the box [lo, hi) grown by a cell (from `start`), since the curvature at a
+    cell reads the columns of its neighbours: each column is summed once, not by all nine cells."""
+    i, j, k = wp.tid()
+    c = wp.vec3i(i + start[0], j + start[1], k + start[2])
+    h = wp.vec3(-1.0)
+    for a in range(3):
+        if a < dim:
+            h[a] = column_height(fraction, types, c, a, lo, hi)
+    heights[c[0], c[1], c[2]] = h
 
 
 @wp.func
-def height_curvature(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i,
-                     axis: int, dim: int, dx: float, lo: wp.vec3i, hi: wp.vec3i):
+def height_curvature(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, dim: int, dx: float):
     """kappa from the heights of the 3 (2D) or 3 x 3 (3D) columns along `axis` around c (Popinet 2009),
     central differences: second order on exact fractions (docs/convergence.md, "The curvature
     estimate"). h is the liquid's height whichever side it is on, so kappa = h'' / (1 + h'^2)^(3/2)
@@ -163,9 +189,11 @@ def height_curvature(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=
     for u in range(-1, 2):
         for v in range(-1, 2):
             if dim == 3 or v == 0:
-                hv = column_height(fraction, types, c + unit(b) * u + unit(t) * v, axis, lo, hi)
-                h[u + 1, v + 1] = hv[0]
-                valid = valid * hv[1]
+                q = c + unit(b) * u + unit(t) * v
+                hq = heights[q[0], q[1], q[2]][axis]
+                h[u + 1, v + 1] = hq
+                if hq < 0.0:
+                    valid = 0.0
     if valid == 0.0:
         return wp.vec2(0.0, 0.0)
     hb = 0.5 * (h[2, 1] - h[0, 1])  # derivatives in cells: the heights are in cells too
@@ -183,13 +211,12 @@ def height_curvature(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=
 def surface_curvature(
     types: wp.array3d(dtype=wp.int32),
     level: wp.array3d(dtype=float),
-    fraction: wp.array3d(dtype=float),
+    heights: wp.array3d(dtype=wp.vec3),
     dx: float,
     dim: int,
     curvature: wp.array3d(dtype=float),
     from_heights: wp.array3d(dtype=float),
     lo: wp.vec3i,
-    hi: wp.vec3i,
 ):
     """kappa near the liquid's surface only (where the smoothed psi, `level`, is not +-1): from the
     heights of `fraction` along the axis nearest the normal where their columns are valid
@@ -240,7 +267,7 @@ def surface_curvature(
         axis = 1
     if dim == 3 and wp.abs(grad[2]) > wp.abs(grad[axis]):
         axis = 2
-    kh = height_curvature(fraction, types, c, axis, dim, dx, lo, hi)
+    kh = height_curvature(heights, c, axis, dim, dx)
     # div(n) = (|g|^2 tr(H) - g^T H g) / |g|^3
     kappa = (g2 * wp.trace(hess) - wp.dot(grad, hess * grad)) / (g2 * wp.sqrt(g2))
     if kh[1] > 0.0:
@@ -261,16 +288,17 @@ def average_curvature(curvature: wp.array3d(dtype=float), from_heights: wp.array
     out[i, j, k] = curvature[i, j, k]
     if from_heights[i, j, k] == 0.0:
         return
-    c = wp.vec3i(i, j, k)
     total = float(0.0)
     weight = float(0.0)
-    for q in range(block_size(dim)):
-        o = block_offset(q, dim)
-        n = c + o
-        if inside(from_heights, n):
-            w = float((2 - wp.abs(o[0])) * (2 - wp.abs(o[1])) * (2 - wp.abs(o[2]))) * from_heights[n[0], n[1], n[2]]
-            total += w * curvature[n[0], n[1], n[2]]
-            weight += w
+    for a in range(-1, 2):  # constant loops, unrolled (a loop over block_offset cost several times more)
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                if dim == 3 or c == 0:
+                    n = wp.vec3i(i + a, j + b, k + c)
+                    if inside(from_heights, n):
+                        w = float((2 - wp.abs(a)) * (2 - wp.abs(b)) * (2 - wp.abs(c))) * from_heights[n[0], n[1], n[2]]
+                        total += w * curvature[n[0], n[1], n[2]]
+                        weight += w
     out[i, j, k] = total / weight
 
 
@@ -491,6 +519,7 @@ class TensionStage(Stage):
         self.level, self.level_tmp = sim.fields.cells(), sim.fields.cells()  # psi and its smoothing's spare
         self.fraction, self.from_heights = sim.fields.cells(), sim.fields.cells()  # height_fraction's psi; 1 where
         self.kappa, self.kappa_tmp = sim.fields.cells(), sim.fields.cells()       # kappa came from heights
+        self.heights = sim.fields.cells(wp.vec3)  # column_heights: per cell, one column per axis
         self.curvature = self.kappa  # force() names the buffer its averaging ends in
         self.smoothed = self.level  # force() names the buffer its smoothing ends in
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
@@ -526,9 +555,14 @@ class TensionStage(Stage):
         gas_volume = f.gas_volume if sim.has_gas else f.liq_volume  # (not read without gas)
         sim.launch(height_fraction, r.cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
                                               int(sim.has_gas), self.fraction, r.lo])
+        lo, hi = r.box
+        start = [max(a - 1, 0) for a in lo]  # the box grown by a cell: the curvature reads neighbours' columns
+        end = [min(b + 1, n) for b, n in zip(hi, g.cells)]
+        sim.launch(column_heights, [b - a for a, b in zip(start, end)],
+                   [self.fraction, f.types, g.dim, r.lo, wp.vec3i(*hi), self.heights, wp.vec3i(*start)])
         kappa, spare = self.kappa, self.kappa_tmp
-        sim.launch(surface_curvature, r.cells, [f.types, level, self.fraction, g.dx, g.dim, kappa,
-                                                self.from_heights, r.lo, wp.vec3i(*r.box[1])])
+        sim.launch(surface_curvature, r.cells, [f.types, level, self.heights, g.dx, g.dim, kappa,
+                                                self.from_heights, r.lo])
         for _ in range(CURVATURE_AVERAGING):
             sim.launch(average_curvature, r.cells, [kappa, self.from_heights, g.dim, spare, r.lo])
             kappa, spare = spare, kappa

@@ -219,7 +219,7 @@ def surface_curvature(
     lo: wp.vec3i,
 ):
     """kappa near the liquid's surface only (where the smoothed psi, `level`, is not +-1): from the
-    heights of `fraction` along the axis nearest the normal where their columns are valid
+    column `heights` along the axis nearest the normal where the columns around the cell are valid
     (`from_heights` 1), else div(grad psi / |grad psi|) of `level`, central differences (thin films,
     walls, the arrays' edge).
 

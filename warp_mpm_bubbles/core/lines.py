@@ -51,6 +51,16 @@ def on_line(first: wp.vec3i, axis: int, s: int):
     return c
 
 
+@wp.func
+def in_box(lo: wp.vec3i, hi: wp.vec3i, c: wp.vec3i):
+    """Cell c lies in the box [lo, hi)."""
+    if c[0] < lo[0] or c[1] < lo[1] or c[2] < lo[2]:
+        return False
+    if c[0] >= hi[0] or c[1] >= hi[1] or c[2] >= hi[2]:
+        return False
+    return True
+
+
 def make_lines(lo, hi, dim: int, device) -> tuple[Lines, tuple[int, int, int]]:
     """The Lines struct for box [lo, hi) of a dim-D grid and the launch dimensions that walk it."""
     box = Lines()

@@ -53,7 +53,7 @@ import warp as wp
 
 from .grid import EMPTY, FLUID
 from .grid_kernels import at, unit
-from .lines import Lines, line_end, line_first, make_lines, on_line, split_lines
+from .lines import Lines, in_box, line_end, line_first, make_lines, on_line, split_lines
 from . import threads
 from .threads import Parallel
 
@@ -88,18 +88,14 @@ class Level:
 
 
 @wp.func
-def in_box(L: Level, c: wp.vec3i):
-    if c[0] < L.box.lo[0] or c[1] < L.box.lo[1] or c[2] < L.box.lo[2]:
-        return False
-    if c[0] >= L.box.hi[0] or c[1] >= L.box.hi[1] or c[2] >= L.box.hi[2]:
-        return False
-    return True
+def level_in_box(L: Level, c: wp.vec3i):
+    return in_box(L.box.lo, L.box.hi, c)
 
 
 @wp.func
 def type_at(L: Level, c: wp.vec3i):
     """Cell type, or -1 outside the active box (which lies inside the arrays)."""
-    if not in_box(L, c):
+    if not level_in_box(L, c):
         return -1
     return L.types[c[0], c[1], c[2]]
 
@@ -364,7 +360,7 @@ def solve_coarsest(
     for r in range(n):
         c = wp.vec3i(r // nyz, (r // nz) % L.types.shape[1], r % nz)
         t = wp.float64(0.0)
-        if in_box(L, c):
+        if level_in_box(L, c):
             t = wp.float64(b[c[0], c[1], c[2]])
         for m in range(r):
             t -= A[r, m] * y[m]

@@ -19,6 +19,7 @@ from ..core.stage import Stage
 from ..core.grid_kernels import (
     block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
+from ..core.lines import in_box
 from ..core.transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})
@@ -128,7 +129,7 @@ def boxed_fraction(fraction: wp.array3d(dtype=float), q: wp.vec3i, lo: wp.vec3i,
     """The fraction at q; outside the launch box [lo, hi), which holds no liquid (core/active_box.py),
     psi = -1 without reading it."""
     psi = float(-1.0)
-    if q[0] >= lo[0] and q[1] >= lo[1] and q[2] >= lo[2] and q[0] < hi[0] and q[1] < hi[1] and q[2] < hi[2]:
+    if in_box(lo, hi, q):
         psi = fraction[q[0], q[1], q[2]]
     return psi
 

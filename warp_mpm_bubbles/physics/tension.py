@@ -518,9 +518,10 @@ class TensionStage(Stage):
         self.rho_liquid = max(m.density for m in liquids)
         self.rho_gas = max((m.density for m in materials if m.is_gas), default=0.0)
         self.level, self.level_tmp = sim.fields.cells(), sim.fields.cells()  # psi and its smoothing's spare
-        self.fraction, self.from_heights = sim.fields.cells(), sim.fields.cells()  # height_fraction's psi; 1 where
-        self.kappa, self.kappa_tmp = sim.fields.cells(), sim.fields.cells()       # kappa came from heights
+        self.fraction = sim.fields.cells()  # height_fraction's psi, which the columns sum
         self.heights = sim.fields.cells(wp.vec3)  # column_heights: per cell, one column per axis
+        self.from_heights = sim.fields.cells()  # 1 where kappa came from heights, 0 where from div(n)
+        self.kappa, self.kappa_tmp = sim.fields.cells(), sim.fields.cells()  # kappa and its averaging's spare
         self.curvature = self.kappa  # force() names the buffer its averaging ends in
         self.smoothed = self.level  # force() names the buffer its smoothing ends in
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp

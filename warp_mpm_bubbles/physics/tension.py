@@ -14,25 +14,29 @@ import math
 import warp as wp
 
 from ..core.geometry import GridGeometry
-from ..core.grid import EMPTY, INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
+from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
 from ..core.grid_kernels import (
     block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
-from ..core.lines import in_box
+from ..core.lines import Lines, line_end, line_first, make_lines, on_line
 from ..core.transfer_kernels import clamp_to_domain
+from .curvature import CURVATURE_AVERAGING, average_curvature, column_heights, height_fraction, surface_curvature
 
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
 def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float),
-                     lo: wp.vec3i):
+                     box: Lines):
     """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface.
-    (lo: the first index of the launch, which may cover a box, core/active_box.py; as below.)"""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    level[i, j, k] = wp.clamp(2.0 * liq_volume[i, j, k] * inv_cell_vol - 1.0, -1.0, 1.0)
+    (box: the cells of the launch, a line a thread, core/lines.py; as below: each kernel is its
+    loop over a line and an `_at` function for one cell.)"""
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        level[c[0], c[1], c[2]] = wp.clamp(2.0 * liq_volume[c[0], c[1], c[2]] * inv_cell_vol - 1.0, -1.0, 1.0)
 
 
 @wp.func(inline=True)
@@ -47,24 +51,24 @@ def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.in
     return v
 
 
-@wp.func
-def inner_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, centre: float):
-    """mirrored_level for a cell c inside the arrays (is_solid: a type >= SOLID_FREE_SLIP)."""
-    return wp.where(is_solid(types[c[0], c[1], c[2]]), centre, level[c[0], c[1], c[2]])
-
-
 @wp.kernel
-def smooth_level_set(
-    types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int, out: wp.array3d(dtype=float),
-    lo: wp.vec3i,
-):
+def smooth_level_set(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
+                     out: wp.array3d(dtype=float), box: Lines):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
     capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
     over block_offset(q) cost 6x the time); the weights sum to 4^dim. Only cells on the arrays' edge
     check for neighbours outside them."""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        smooth_level_set_at(types, level, dim, out, c[0], c[1], c[2])
+
+
+@wp.func
+def smooth_level_set_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
+                        out: wp.array3d(dtype=float), i: int, j: int, k: int):
     value = level[i, j, k]
     if is_solid(types[i, j, k]):
         out[i, j, k] = value
@@ -91,232 +95,10 @@ def smooth_level_set(
 
 
 @wp.kernel
-def height_fraction(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                    types: wp.array3d(dtype=wp.int32), inv_cell_vol: float, dim: int, has_gas: int,
-                    fraction: wp.array3d(dtype=float), lo: wp.vec3i):
-    """The liquid fraction the heights sum, as psi = 2 phi - 1 (not clamped). Away from air (no EMPTY
-    cell in the 3^dim block) it is the liquid's share of the particles' volume, L / (L + G): exactly
-    +-1 in either bulk, where L / V alone carries the particles' packing noise (6% a cell), which the
-    column sums would turn into curvature noise. Beside air, L / V: air holds no particles to share with."""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    liquid = liq_volume[i, j, k]
-    if liquid == 0.0:  # -1 either way: no neighbourhood to look at (most of a box around a splash)
-        fraction[i, j, k] = -1.0
-        return
-    beside_air = bool(False)
-    nx, ny, nz = types.shape[0] - 1, types.shape[1] - 1, types.shape[2] - 1
-    for a in range(-1, 2):  # constant loops, unrolled; a neighbour beyond the arrays clamps onto the block
-        for b in range(-1, 2):
-            for c in range(-1, 2):
-                if dim == 3 or c == 0:
-                    if types[wp.clamp(i + a, 0, nx), wp.clamp(j + b, 0, ny), wp.clamp(k + c, 0, nz)] == EMPTY:
-                        beside_air = True
-    total = liquid
-    if has_gas != 0:
-        total += gas_volume[i, j, k]
-    value = 2.0 * liquid * inv_cell_vol - 1.0
-    if not beside_air and total > 0.0:
-        value = 2.0 * liquid / total - 1.0
-    fraction[i, j, k] = value
-
-
-COLUMN_HALF = 3  # a height column spans 2 * 3 + 1 cells: the splat's 1.5 cells each side, and a slope of 1
-
-
-@wp.func
-def boxed_fraction(fraction: wp.array3d(dtype=float), q: wp.vec3i, lo: wp.vec3i, hi: wp.vec3i):
-    """The fraction at q; outside the launch box [lo, hi), which holds no liquid (core/active_box.py),
-    psi = -1 without reading it."""
-    psi = float(-1.0)
-    if in_box(lo, hi, q):
-        psi = fraction[q[0], q[1], q[2]]
-    return psi
-
-
-@wp.func
-def column_height(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), c: wp.vec3i, axis: int,
-                  lo: wp.vec3i, hi: wp.vec3i):
-    """The liquid's height in the column of 2 COLUMN_HALF + 1 cells along `axis` centred on c, in cells
-    (-1: not valid): the sum of the liquid fraction (psi + 1) / 2. Valid when the column lies in the
-    arrays, ends on opposite sides of the surface (checked first: most columns do not) and crosses
-    no solid."""
-    e = unit(axis)
-    first = c - e * COLUMN_HALF
-    last = c + e * COLUMN_HALF
-    if not (inside(types, first) and inside(types, last)):
-        return -1.0
-    if boxed_fraction(fraction, first, lo, hi) * boxed_fraction(fraction, last, lo, hi) >= -0.25:
-        return -1.0
-    total = float(0.0)
-    solid = int(0)
-    for s in range(-COLUMN_HALF, COLUMN_HALF + 1):
-        q = c + e * s
-        solid += int(is_solid(types[q[0], q[1], q[2]]))
-        total += 0.5 * (boxed_fraction(fraction, q, lo, hi) + 1.0)
-    if solid > 0:
-        return -1.0
-    return total
-
-
-@wp.kernel
-def column_heights(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), dim: int,
-                   lo: wp.vec3i, hi: wp.vec3i, heights: wp.array3d(dtype=wp.vec3), start: wp.vec3i):
-    """Per cell, the column_height along each axis (-1 where the column is not valid; a height is
-    >= 0). Launched over the box [lo, hi) grown by a cell (from `start`), since the curvature at a
-    cell reads the columns of its neighbours: each column is summed once, not by all nine cells."""
-    i, j, k = wp.tid()
-    c = wp.vec3i(i + start[0], j + start[1], k + start[2])
-    h = wp.vec3(-1.0)
-    for a in range(3):
-        if a < dim:
-            h[a] = column_height(fraction, types, c, a, lo, hi)
-    heights[c[0], c[1], c[2]] = h
-
-
-@wp.func
-def height_curvature(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, dim: int, dx: float):
-    """kappa from the heights of the 3 (2D) or 3 x 3 (3D) columns along `axis` around c (Popinet 2009),
-    central differences: second order on exact fractions (docs/convergence.md, "The curvature
-    estimate"). h is the liquid's height whichever side it is on, so kappa = h'' / (1 + h'^2)^(3/2)
-    (2D) and its 3D form are +1/R for a bubble, as div(n) with n into the liquid. The second value
-    is 1 when every column is valid."""
-    b = (axis + 1) % 3
-    t = (axis + 2) % 3
-    if dim == 2:
-        b = 1 - axis  # the slab's other in-plane axis; no second transverse axis
-    h = wp.mat33(0.0)  # h[u + 1, v + 1]: the column offset by u along b and v along t
-    valid = float(1.0)
-    for u in range(-1, 2):
-        for v in range(-1, 2):
-            if dim == 3 or v == 0:
-                q = c + unit(b) * u + unit(t) * v
-                hq = heights[q[0], q[1], q[2]][axis]
-                h[u + 1, v + 1] = hq
-                if hq < 0.0:
-                    valid = 0.0
-    if valid == 0.0:
-        return wp.vec2(0.0, 0.0)
-    hb = 0.5 * (h[2, 1] - h[0, 1])  # derivatives in cells: the heights are in cells too
-    hbb = h[2, 1] - 2.0 * h[1, 1] + h[0, 1]
-    if dim == 2:
-        return wp.vec2(hbb / (dx * wp.pow(1.0 + hb * hb, 1.5)), 1.0)
-    ht = 0.5 * (h[1, 2] - h[1, 0])
-    htt = h[1, 2] - 2.0 * h[1, 1] + h[1, 0]
-    hbt = 0.25 * (h[2, 2] - h[2, 0] - h[0, 2] + h[0, 0])
-    num = (1.0 + ht * ht) * hbb + (1.0 + hb * hb) * htt - 2.0 * hb * ht * hbt
-    return wp.vec2(num / (dx * wp.pow(1.0 + hb * hb + ht * ht, 1.5)), 1.0)
-
-
-@wp.kernel
-def surface_curvature(
-    types: wp.array3d(dtype=wp.int32),
-    level: wp.array3d(dtype=float),
-    heights: wp.array3d(dtype=wp.vec3),
-    dx: float,
-    dim: int,
-    curvature: wp.array3d(dtype=float),
-    from_heights: wp.array3d(dtype=float),
-    lo: wp.vec3i,
-):
-    """kappa near the liquid's surface only (where the smoothed psi, `level`, is not +-1): from the
-    column `heights` along the axis nearest the normal where the columns around the cell are valid
-    (`from_heights` 1), else div(grad psi / |grad psi|) of `level`, central differences (thin films,
-    walls, the arrays' edge).
-
-    The normal points into the liquid, so kappa = +(d-1)/R for a bubble of radius R and -(d-1)/R
-    for a drop: the pressure jump (non-liquid minus liquid) is sigma kappa in both cases. Clamped
-    to 1/dx, the largest curvature the grid can carry.
-    """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    c = wp.vec3i(i, j, k)
-    curvature[i, j, k] = 0.0
-    from_heights[i, j, k] = 0.0
-    if is_solid(types[i, j, k]):
-        return
-    if i == 0 or j == 0 or i == types.shape[0] - 1 or j == types.shape[1] - 1:
-        return
-    if dim == 3 and (k == 0 or k == types.shape[2] - 1):
-        return
-    p0 = level[i, j, k]
-    if wp.abs(p0) >= 0.99:
-        return
-    grad = wp.vec3(0.0)
-    hess = wp.mat33(0.0)
-    for a in range(3):  # constant loops (unrolled); the axes past dim are skipped; no neighbour is outside
-        if a < dim:
-            ea = unit(a)
-            pp = inner_level(level, types, c + ea, p0)
-            pm = inner_level(level, types, c - ea, p0)
-            grad[a] = (pp - pm) / (2.0 * dx)
-            hess[a, a] = (pp - 2.0 * p0 + pm) / (dx * dx)
-            for b in range(3):
-                if b > a and b < dim:
-                    eb = unit(b)
-                    cross = (inner_level(level, types, c + ea + eb, p0)
-                             - inner_level(level, types, c + ea - eb, p0)
-                             - inner_level(level, types, c - ea + eb, p0)
-                             + inner_level(level, types, c - ea - eb, p0)) / (4.0 * dx * dx)
-                    hess[a, b] = cross
-                    hess[b, a] = cross
-    g2 = wp.dot(grad, grad)
-    if g2 < 1.0e-12 / (dx * dx):
-        return
-    axis = int(0)  # the axis nearest the normal: the surface's slope across it is at most 1
-    if wp.abs(grad[1]) > wp.abs(grad[axis]):
-        axis = 1
-    if dim == 3 and wp.abs(grad[2]) > wp.abs(grad[axis]):
-        axis = 2
-    kh = height_curvature(heights, c, axis, dim, dx)
-    # div(n) = (|g|^2 tr(H) - g^T H g) / |g|^3
-    kappa = (g2 * wp.trace(hess) - wp.dot(grad, hess * grad)) / (g2 * wp.sqrt(g2))
-    if kh[1] > 0.0:
-        kappa = kh[0]
-        from_heights[i, j, k] = 1.0
-    curvature[i, j, k] = wp.clamp(kappa, -1.0 / dx, 1.0 / dx)
-
-
-@wp.kernel
-def average_curvature(curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float), dim: int,
-                      out: wp.array3d(dtype=float), lo: wp.vec3i):
-    """A height-function curvature becomes the mean of those in its 3^dim block (binomial weights).
-    Each measures the same stretch of surface, so on a circle they agree and the mean keeps the value
-    (no bias, where smoothing the fraction first flattened the heights: +6% at 8 cells per radius);
-    the particles' noise averages out. div(n) cells are left as they are."""
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
-    out[i, j, k] = curvature[i, j, k]
-    if from_heights[i, j, k] == 0.0:
-        return
-    total = float(0.0)
-    weight = float(0.0)
-    for a in range(-1, 2):  # constant loops, unrolled (a loop over block_offset cost several times more)
-        for b in range(-1, 2):
-            for c in range(-1, 2):
-                if dim == 3 or c == 0:
-                    n = wp.vec3i(i + a, j + b, k + c)
-                    if inside(from_heights, n):
-                        w = float((2 - wp.abs(a)) * (2 - wp.abs(b)) * (2 - wp.abs(c))) * from_heights[n[0], n[1], n[2]]
-                        total += w * curvature[n[0], n[1], n[2]]
-                        weight += w
-    out[i, j, k] = total / weight
-
-
-@wp.kernel
-def apply_surface_tension(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    level: wp.array3d(dtype=float),
-    curvature: wp.array3d(dtype=float),
-    inv_rho: wp.array3d(dtype=float),
-    sigma: float,
-    axis: int,
-    dx: float,
-    dt: float,
-    vel: wp.array3d(dtype=float),
-    lo: wp.vec3i,
-):
+def apply_surface_tension(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+                          level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
+                          inv_rho: wp.array3d(dtype=float), sigma: float, axis: int, dx: float, dt: float,
+                          vel: wp.array3d(dtype=float), box: Lines):
     """The pressure jump [p] = sigma kappa across the liquid's surface (Kang, Fedkiw & Liu 2000).
 
     On a face between a liquid cell L and a gas or empty cell N, the projection must see
@@ -324,8 +106,19 @@ def apply_surface_tension(
     the same as putting the jump into the right-hand side and into the pressure gradient, so the
     pressure operator is untouched. kappa is interpolated to where psi crosses zero.
     """
-    i, j, k = wp.tid()
-    i, j, k = i + lo[0], j + lo[1], k + lo[2]
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        apply_surface_tension_at(types, phase, level, curvature, inv_rho, sigma, axis, dx, dt, vel,
+                                 c[0], c[1], c[2])
+
+
+@wp.func
+def apply_surface_tension_at(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+                             level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
+                             inv_rho: wp.array3d(dtype=float), sigma: float, axis: int, dx: float, dt: float,
+                             vel: wp.array3d(dtype=float), i: int, j: int, k: int):
     if inv_rho[i, j, k] == 0.0:
         return
     hi = wp.vec3i(i, j, k)
@@ -501,7 +294,6 @@ def retract_gas_films(
 
 
 LEVEL_SET_SMOOTHING = 2  # binomial passes of psi before its normal and div(n) (tests/test_tension.py measures it)
-CURVATURE_AVERAGING = 2  # passes of average_curvature (docs/convergence.md, "The curvature estimate")
 
 
 class TensionStage(Stage):
@@ -550,29 +342,30 @@ class TensionStage(Stage):
     def force(self, sim, dt: float):
         g, f, r = sim.grid, sim.fields, sim.region
         level, smoothed = self.level, self.level_tmp
-        sim.launch(liquid_level_set, r.cells, [f.liq_volume, 1.0 / g.dx**3, level, r.lo])
+        cells = r.cell_lines
+        sim.launch_lines(liquid_level_set, cells, [f.liq_volume, 1.0 / g.dx**3, level])
         for _ in range(LEVEL_SET_SMOOTHING):
-            sim.launch(smooth_level_set, r.cells, [f.types, level, g.dim, smoothed, r.lo])
+            sim.launch_lines(smooth_level_set, cells, [f.types, level, g.dim, smoothed])
             level, smoothed = smoothed, level
         gas_volume = f.gas_volume if sim.has_gas else f.liq_volume  # (not read without gas)
-        sim.launch(height_fraction, r.cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
-                                              int(sim.has_gas), self.fraction, r.lo])
+        sim.launch_lines(height_fraction, cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
+                                                  int(sim.has_gas), self.fraction])
         lo, hi = r.box
         start = [max(a - 1, 0) for a in lo]  # the box grown by a cell: the curvature reads neighbours' columns
         end = [min(b + 1, n) for b, n in zip(hi, g.cells)]
-        sim.launch(column_heights, [b - a for a, b in zip(start, end)],
-                   [self.fraction, f.types, g.dim, r.lo, wp.vec3i(*hi), self.heights, wp.vec3i(*start)])
+        sim.launch_lines(column_heights, make_lines(start, end, g.dim, sim.device),
+                         [self.fraction, f.types, g.dim, r.lo, wp.vec3i(*hi), self.heights])
         kappa, spare = self.kappa, self.kappa_tmp
-        sim.launch(surface_curvature, r.cells, [f.types, level, self.heights, g.dx, g.dim, kappa,
-                                                self.from_heights, r.lo])
+        sim.launch_lines(surface_curvature, cells, [f.types, level, self.heights, g.dx, g.dim, kappa,
+                                                    self.from_heights])
         for _ in range(CURVATURE_AVERAGING):
-            sim.launch(average_curvature, r.cells, [kappa, self.from_heights, g.dim, spare, r.lo])
+            sim.launch_lines(average_curvature, cells, [kappa, self.from_heights, g.dim, spare])
             kappa, spare = spare, kappa
         self.curvature = kappa
         self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
-            sim.launch(apply_surface_tension, r.faces(a), [f.types, f.phase_cells, level, kappa,
-                                                           f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a], r.lo])
+            sim.launch_lines(apply_surface_tension, r.face_lines[a], [f.types, f.phase_cells, level, kappa,
+                                                                      f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a]])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles

@@ -7,6 +7,7 @@ accuracy_vs_time.py against itself.
     python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
     python benchmarks/convergence.py --report-only        # re-render from the saved runs
     python benchmarks/convergence.py --device cuda:0 --cases adelsberger_3d --resolutions 18,27,40
+    python benchmarks/convergence.py --cases hysing_2d --resolutions 40 --quality preview,production,reference --seeds 0,1,2
 
 Cases (docs/convergence.md explains the mapping):
 - hysing_2d: Hysing et al. 2009, test case 1: a 1 x 2 tank, no-slip top and bottom, free-slip sides,
@@ -27,6 +28,13 @@ area / volume over the gas particles' (diagnostics.field_shape unsmoothed), void
 convergence_runs/<case>_<resolution>.json, replaced when rerun), so cases and resolutions can be run
 separately and the report merges what is there. Writes benchmarks/results/convergence.{json,csv,md}
 and docs/convergence.png (--quick: benchmarks/results/convergence_quick*).
+
+Quality presets (issue #12, item 6): --quality runs the cases at each preset as a scene's
+[solver].quality sets it (reference also refines the grid: `refine` cells per cell_size), --seeds
+at other particle seeds (the noise floor). The convergence tables take the production runs at seed
+0; the presets table puts each preset's error (against the published value, or for the
+free-surface case against its finest production run) beside its cost. Runs at another preset or
+seed are saved as <case>_<resolution>_<quality>_s<seed>.json.
 """
 
 from __future__ import annotations
@@ -90,13 +98,14 @@ CASES = {c.key: c for c in [
 ]}
 
 
-def scene(case: Case, res: int, tmp: str) -> Scene:
+def scene(case: Case, res: int, tmp: str, quality: str = "production", seed: int = 0) -> Scene:
+    settings = SolverSettings(quality=quality, seed=seed)
     if case.key == "free_surface_2d":
         r = 0.01
         return Scene(domain=Domain(size=case.size, cell_size=r / res),
                      materials={"water": Material("water", surface_tension=0.072), "air": Material("air", kind="gas")},
                      shapes=[Box("water", (0.0, 0.0), (0.08, 0.14)), Sphere("air", (0.04, 0.03), r)],
-                     solver=SolverSettings(), output=Output(path=f"{tmp}/c.usdc"), name=case.key)
+                     solver=settings, output=Output(path=f"{tmp}/c.usdc"), name=case.key)
     dim = case.dim
     walls = "no_slip" if dim == 3 else {"x_min": "free_slip", "x_max": "free_slip", "y_min": "no_slip",
                                         "y_max": "no_slip"}
@@ -107,7 +116,7 @@ def scene(case: Case, res: int, tmp: str) -> Scene:
                                gravity=(0.0, -0.98, 0.0)[:dim]),
                  materials=fluids,
                  shapes=[Box("liquid", (0.0,) * dim, case.size), Sphere("bubble", (0.5, 0.5, 0.5)[:dim], 0.25)],
-                 solver=SolverSettings(), output=Output(path=f"{tmp}/c.usdc"), name=case.key)
+                 solver=settings, output=Output(path=f"{tmp}/c.usdc"), name=case.key)
 
 
 def sample(sim: Simulation, gas_index: int) -> dict:
@@ -126,9 +135,9 @@ def sample(sim: Simulation, gas_index: int) -> dict:
             "voids": void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up), "steps": sim.stats.steps}
 
 
-def run_one(case: Case, res: int, t_end: float, device) -> dict:
+def run_one(case: Case, res: int, t_end: float, device, quality: str = "production", seed: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        sim = Simulation(scene(case, res, tmp), device)
+        sim = Simulation(scene(case, res, tmp, quality, seed), device)
         gas_index = [m.is_gas for m in sim.scene.materials.values()].index(True)
         series = [sample(sim, gas_index)]
         wall = 0.0
@@ -138,9 +147,10 @@ def run_one(case: Case, res: int, t_end: float, device) -> dict:
             wall += time.perf_counter() - start
             series.append(sample(sim, gas_index))
             s = series[-1]
-            print(f"  {case.key} {res}: t {s['t']:.3f} y {s['centroid_y']:.4f} v {s['particle_speed']:.4f} "
+            print(f"  {case.key} {res} {quality} s{seed}: t {s['t']:.3f} y {s['centroid_y']:.4f} v {s['particle_speed']:.4f} "
                   f"round {s['roundness']:.4f} voids {s['voids']} ({wall:.0f} s)", file=sys.stderr, flush=True)
-        return {"case": case.key, "resolution": res, "t_end": t_end, "dx": sim.grid.dx,
+        return {"case": case.key, "resolution": res, "quality": quality, "seed": seed,
+                "refine": sim.scene.solver.refine, "t_end": t_end, "dx": sim.grid.dx,
                 "particles": sim.num_particles, "steps": sim.stats.steps, "wall_s": wall,
                 "device": describe_device(device), "series": series, "summary": summarize(series)}
 
@@ -205,11 +215,63 @@ def git_describe() -> str:
         return "unknown"
 
 
+def is_study_run(r: dict) -> bool:
+    """The convergence tables' runs: production settings, seed 0 (runs saved before the fields were)."""
+    return r.get("quality", "production") == "production" and r.get("seed", 0) == 0
+
+
+def run_file(key: str, res: int, quality: str, seed: int) -> str:
+    tail = "" if quality == "production" and seed == 0 else f"_{quality}_s{seed}"
+    return f"{key}_{res}{tail}.json"
+
+
+# Solver commits that changed no result, mapped to the earlier commit whose runs they reproduce
+# bit for bit (checked by re-running: every sample of the series equal), so runs of both still
+# make one study. b45dea0: the tension kernels walk lines; hysing_2d 40, adelsberger_3d 18 and
+# free_surface_2d 8 re-ran identical to 159af47.
+SAME_RESULTS = {"b45dea0": "159af47"}
+PRESET_METRICS = ("rise_speed_max", "centroid_end", "roundness_min")
+
+
+def presets_report(runs: list[dict]) -> dict:
+    """Per case and base resolution with runs at more than one preset: each preset's error on the
+    metrics, seed by seed, and its wall time. The error is against the published value where there
+    is one (at the case's full t_end), else against the case's finest production run (named)."""
+    out = {}
+    for key, case in CASES.items():
+        t_end = max((r["t_end"] for r in runs if r["case"] == key), default=None)
+        mine = [r for r in runs if r["case"] == key and r["t_end"] == t_end]
+        finest = max((r for r in mine if is_study_run(r)), key=lambda r: r["resolution"], default=None)
+        published = case.reference if t_end is not None and t_end >= case.t_end else {}
+        for res in sorted({r["resolution"] for r in mine}):
+            at = [r for r in mine if r["resolution"] == res]
+            if len({r.get("quality", "production") for r in at}) < 2:
+                continue
+            rows = []
+            for r in sorted(at, key=lambda r: (list(PRESETS_ORDER).index(r.get("quality", "production")),
+                                               r.get("seed", 0))):
+                summary, errors = summarize(r["series"]), {}
+                for m in PRESET_METRICS:
+                    ref = published.get(REF_KEY[m])
+                    target = ref[0] if ref else (summarize(finest["series"])[m] if finest else float("nan"))
+                    errors[m] = summary[m] / target - 1.0
+                rows.append({"quality": r.get("quality", "production"), "seed": r.get("seed", 0),
+                             "grid": res * r.get("refine", 1), "wall_s": r["wall_s"], "steps": r["steps"],
+                             "values": {m: summary[m] for m in PRESET_METRICS}, "errors": errors})
+            out[f"{key}_{res}"] = {"case": key, "resolution": res, "unit": case.unit, "rows": rows,
+                                   "against": "published" if published else
+                                   f"the production run at {finest['resolution']} {case.unit}" if finest else "-"}
+    return out
+
+
+PRESETS_ORDER = ("preview", "production", "reference")
+
+
 def report(runs: list[dict], command: str) -> dict:
     out = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-           "code": git_describe(), "command": command, "cases": {}}
+           "code": git_describe(), "command": command, "cases": {}, "presets": presets_report(runs)}
     for key, case in CASES.items():
-        mine = sorted((r for r in runs if r["case"] == key), key=lambda r: r["resolution"])
+        mine = sorted((r for r in runs if r["case"] == key and is_study_run(r)), key=lambda r: r["resolution"])
         if not mine:
             continue
         levels = [r["resolution"] for r in mine]
@@ -239,7 +301,7 @@ def markdown(rep: dict) -> str:
     lines = [f"# Convergence study ({rep['date']}, solver at {rep['code']})", "", f"`{rep['command']}`", ""]
     for key, e in rep["cases"].items():
         lv = e["levels"]
-        mixed = len(set(e["code"])) > 1
+        mixed = len({SAME_RESULTS.get(c, c) for c in e["code"]}) > 1
         lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", ""]
         lines += [f"**Runs from different solver versions: {', '.join(e['code'])}.** Re-run them all.", ""] \
             if mixed else []
@@ -255,6 +317,15 @@ def markdown(rep: dict) -> str:
         lines += ["| wall s | " + " | ".join(f"{w:.0f}" for w in e["wall_s"]) + " |" * 6,
                   "| steps | " + " | ".join(map(str, e["steps"])) + " |" * 6,
                   "| particles | " + " | ".join(map(str, e["particles"])) + " |" * 6, ""]
+    for e in rep.get("presets", {}).values():
+        lines += [f"## Presets: {e['case']} at {e['resolution']} {e['unit']} (errors against {e['against']})", "",
+                  "| preset | seed | grid | " + " | ".join(PRESET_METRICS) + " | wall s | steps |",
+                  "|---|---:|---:|" + "---:|" * (len(PRESET_METRICS) + 2)]
+        for row in e["rows"]:
+            lines.append(f"| {row['quality']} | {row['seed']} | {row['grid']} | " + " | ".join(
+                f"{fmt(row['values'][m])} ({100 * row['errors'][m]:+.2f}%)" for m in PRESET_METRICS)
+                + f" | {row['wall_s']:.0f} | {row['steps']} |")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -263,11 +334,11 @@ def plot(runs: list[dict], path: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = [k for k in CASES if any(r["case"] == k for r in runs)]
+    keys = [k for k in CASES if any(r["case"] == k and is_study_run(r) for r in runs)]
     fig, axes = plt.subplots(len(keys), 3, figsize=(13, 3.2 * len(keys)), squeeze=False)
     for row, key in zip(axes, keys):
         case = CASES[key]
-        for r in sorted((r for r in runs if r["case"] == key), key=lambda r: r["resolution"]):
+        for r in sorted((r for r in runs if r["case"] == key and is_study_run(r)), key=lambda r: r["resolution"]):
             s = r["series"]
             t = [x["t"] for x in s]
             for ax, y in zip(row, (centroid_speed(s), [x["centroid_y"] for x in s], [x["roundness"] for x in s])):
@@ -293,6 +364,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="smaller grids and a shorter t_end")
     ap.add_argument("--t-end", type=float, default=None)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--quality", default="production",
+                    help=f"comma list of quality presets to run ({', '.join(PRESETS_ORDER)}; default production)")
+    ap.add_argument("--seeds", default="0", help="comma list of particle seeds (default 0)")
     ap.add_argument("--report-only", action="store_true", help="no runs: re-render from the saved ones")
     args = ap.parse_args(argv)
     wp.config.quiet = True
@@ -304,6 +378,19 @@ def main(argv=None) -> int:
         if key not in CASES:
             print(f"--cases: unknown case {key!r}; choose from {', '.join(CASES)}", file=sys.stderr)
             return 2
+    qualities = args.quality.split(",")
+    bad = [q for q in qualities if q not in PRESETS_ORDER]
+    if bad:
+        print(f"--quality: unknown preset {bad[0]!r}; choose from {', '.join(PRESETS_ORDER)}", file=sys.stderr)
+        return 2
+    try:
+        seeds = [int(x) for x in args.seeds.split(",")]
+        if min(seeds) < 0:
+            raise ValueError
+    except ValueError:
+        print(f"--seeds: expected whole numbers >= 0 separated by commas, e.g. 0,1,2; got {args.seeds!r}",
+              file=sys.stderr)
+        return 2
     for key in keys:
         case = CASES[key]
         try:
@@ -315,11 +402,14 @@ def main(argv=None) -> int:
             return 2
         t_end = args.t_end or (case.quick_t_end if args.quick else case.t_end)
         for res in levels:
-            r = run_one(case, res, t_end, wp.get_device(args.device))
-            r["command"], r["code"] = " ".join(sys.argv), git_describe()
-            r["package"] = str(Path(warp_mpm_bubbles.__file__).resolve().parent.relative_to(ROOT))
-            (run_dir / f"{key}_{res}.json").write_text(json.dumps(r, indent=1))
-            print(f"{key} {res}: {r['wall_s']:.0f} s, {r['steps']} steps, {r['summary']}", flush=True)
+            for quality in qualities:
+                for seed in seeds:
+                    r = run_one(case, res, t_end, wp.get_device(args.device), quality, seed)
+                    r["command"], r["code"] = " ".join(sys.argv), git_describe()
+                    r["package"] = str(Path(warp_mpm_bubbles.__file__).resolve().parent.relative_to(ROOT))
+                    (run_dir / run_file(key, res, quality, seed)).write_text(json.dumps(r, indent=1))
+                    print(f"{key} {res} {quality} seed {seed}: {r['wall_s']:.0f} s, {r['steps']} steps, "
+                          f"{r['summary']}", flush=True)
     runs = [json.loads(p.read_text()) for p in sorted(run_dir.glob("*.json"))]
     rep = report(runs, "python benchmarks/convergence.py " + " ".join(sys.argv[1:]))
     (RESULTS / f"{tag}.json").write_text(json.dumps(rep, indent=1))
@@ -328,11 +418,12 @@ def main(argv=None) -> int:
     with open(RESULTS / f"{tag}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         keys = ("t", "centroid_y", "particle_speed", "roundness", "gas_region_ratio", "voids", "steps")
-        w.writerow(["case", "resolution", *keys, "rise_speed"])
+        w.writerow(["case", "resolution", "quality", "seed", *keys, "rise_speed"])
         for r in runs:
             speed = centroid_speed(r["series"])
             for s, v in zip(r["series"], speed):
-                w.writerow([r["case"], r["resolution"], *(s.get(k, s.get("rise_speed")) for k in keys), v])
+                w.writerow([r["case"], r["resolution"], r.get("quality", "production"), r.get("seed", 0),
+                            *(s.get(k, s.get("rise_speed")) for k in keys), v])
     plot(runs, (RESULTS if args.quick else ROOT / "docs") / f"{tag}.png")
     print(md)
     return 0

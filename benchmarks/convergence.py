@@ -62,6 +62,7 @@ from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSetting
 from warp_mpm_bubbles.core.simulation import Simulation  # noqa: E402
 from warp_mpm_bubbles.core.timing import describe_device  # noqa: E402
 from warp_mpm_bubbles.diagnostics import field_shape, gas_fraction, void_cells  # noqa: E402
+from warp_mpm_bubbles.scene.quality import PRESETS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SAMPLES = 60
@@ -248,7 +249,7 @@ def presets_report(runs: list[dict]) -> dict:
             if len({r.get("quality", "production") for r in at}) < 2:
                 continue
             rows = []
-            for r in sorted(at, key=lambda r: (list(PRESETS_ORDER).index(r.get("quality", "production")),
+            for r in sorted(at, key=lambda r: (list(PRESETS).index(r.get("quality", "production")),
                                                r.get("seed", 0))):
                 summary, errors = summarize(r["series"]), {}
                 for m in PRESET_METRICS:
@@ -263,8 +264,6 @@ def presets_report(runs: list[dict]) -> dict:
                                    f"the production run at {finest['resolution']} {case.unit}" if finest else "-"}
     return out
 
-
-PRESETS_ORDER = ("preview", "production", "reference")
 
 
 def report(runs: list[dict], command: str) -> dict:
@@ -365,7 +364,7 @@ def main(argv=None) -> int:
     ap.add_argument("--t-end", type=float, default=None)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--quality", default="production",
-                    help=f"comma list of quality presets to run ({', '.join(PRESETS_ORDER)}; default production)")
+                    help=f"comma list of quality presets to run ({', '.join(PRESETS)}; default production)")
     ap.add_argument("--seeds", default="0", help="comma list of particle seeds (default 0)")
     ap.add_argument("--report-only", action="store_true", help="no runs: re-render from the saved ones")
     args = ap.parse_args(argv)
@@ -379,9 +378,9 @@ def main(argv=None) -> int:
             print(f"--cases: unknown case {key!r}; choose from {', '.join(CASES)}", file=sys.stderr)
             return 2
     qualities = args.quality.split(",")
-    bad = [q for q in qualities if q not in PRESETS_ORDER]
+    bad = [q for q in qualities if q not in PRESETS]
     if bad:
-        print(f"--quality: unknown preset {bad[0]!r}; choose from {', '.join(PRESETS_ORDER)}", file=sys.stderr)
+        print(f"--quality: unknown preset {bad[0]!r}; choose from {', '.join(PRESETS)}", file=sys.stderr)
         return 2
     try:
         seeds = [int(x) for x in args.seeds.split(",")]

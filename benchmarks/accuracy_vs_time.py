@@ -526,8 +526,10 @@ Reading it (written for the runs recorded here; revisit if a rerun moves the num
   -2.8% to -3.2% at every level, at 3 ms -0.67% / -0.54% / -0.49% / -0.37%, at 1 ms about -0.1%
   to -0.2%, at the default 10 ms about -1% (scratch runs of this case). The clustering the
   correction undoes does not shrink with the grid here, so the drift is a model setting's, not a
-  grid error; issue #12 keeps it open. The 8-cell run's near-zero drift is presumably gains and
-  losses cancelling.
+  grid error. [solver].volume_correction_speed ties the time to the grid (tau = dx / U) and makes
+  the drift converge: at U = 1 m/s -1.05%, -0.73%, -0.61%, -0.40%, -0.26%, -0.24% at 12 to 64
+  cells per a (scratch runs; design.md #volume-correction says why it is not the default). The
+  8-cell run's near-zero drift is presumably gains and losses cancelling.
 - The dam break's front against Martin & Moyce does not converge: the front-speed error grows
   from 3% to 6% as the grid is refined and the position RMS stays at 0.03 a. What remains is the
   model against the experiment (inviscid 2D, the gate's lift, the one-particle tip), not

@@ -199,6 +199,9 @@ def setk(text, old, new):
     (dict(extra="[materials.oil]\ndensity = 1e9"), "[materials.oil].density", "osmium"),
     (dict(extra='[solver]\nvolume_correction = 0.3'), "[solver].volume_correction", "volume_relaxation_time"),
     (dict(extra='[solver]\nvolume_relaxation_time = 1e-6'), "[solver].volume_relaxation_time", "seeding noise"),
+    (dict(extra='[solver]\nvolume_correction_speed = 100.0'), "[solver].volume_correction_speed", "seeding noise"),
+    (dict(extra='[solver]\nvolume_correction_speed = 1.0\nvolume_relaxation_time = 0.01'),
+     "[solver].volume_correction_speed", "not both"),
     # in bounds, but the first frame would need 2e5 steps: the static step check names the term
     (dict(water="viscosity = 500.0", fps="0.1", extra='[effects.viscosity]\nsolver = "explicit"'),
      "[materials].viscosity", "the viscous limit"),
@@ -206,7 +209,8 @@ def setk(text, old, new):
     (dict(extra='[[colliders]]\ntype = "sphere"\ncenter = [0.3, 0.1]\nradius = 0.02\nvelocity = [0.0, 1.0]\n'
                 'acceleration = [0.0, 1e5]\nstop = 1.0'), "[colliders.0]", "moves at up to"),
 ], ids=["velocity_1e38", "velocity_1e300", "gravity_1e30", "fps_1e-6", "fps_1e6", "viscosity_1e6",
-        "tension_50", "density_1e9", "volume_correction", "volume_relaxation_1e-6", "viscous_steps", "max_dt_steps",
+        "tension_50", "density_1e9", "volume_correction", "volume_relaxation_1e-6", "correction_speed_100",
+        "speed_and_time", "viscous_steps", "max_dt_steps",
         "collider_speed"])
 def test_non_physical_magnitudes_are_refused_with_the_reason(tmp_path, capsys, change, key, words):
     code, out, err = run_cli(capsys, "check", scene_file(tmp_path, **change))

@@ -452,8 +452,8 @@ MAX_VOLUME_SHARE = 1.0  # the most of a cell's excess one step may undo: more ov
 
 def volume_relaxation_rate(relaxation_time: float, dt: float) -> float:
     """The volume correction's rate, 1/s (docs/design.md, #volume-correction): a cell's excess is
-    undone at excess / tau per second, tau = [solver].volume_relaxation_time, so the state at a time
-    does not depend on the step; but never more than MAX_VOLUME_SHARE of it in one step, so no
+    undone at excess / tau per second, tau = SolverSettings.volume_relaxation(dx) ([solver].volume_relaxation_time,
+    or the cell over [solver].volume_correction_speed), so the state at a time does not depend on the step; but never more than MAX_VOLUME_SHARE of it in one step, so no
     setting (and no tiny step) overshoots. 0 turns the correction off."""
     if relaxation_time <= 0.0:
         return 0.0

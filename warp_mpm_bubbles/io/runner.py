@@ -180,6 +180,15 @@ def _voids_line(sim: Simulation) -> str:
             f"step, frame {frame}), filled as liquid{trapped}")
 
 
+def _relaxation(solver, dx: float) -> str:
+    """The volume correction's relaxation time as the summary names it, with where it came from."""
+    tau = solver.volume_relaxation(dx)
+    if tau == 0:
+        return "off"
+    source = "fixed" if solver.volume_correction_speed is None else f"cell / {solver.volume_correction_speed:g} m/s"
+    return f"{1e3 * tau:.3g} ms ({source})"
+
+
 def summary(result: RunResult) -> str:
     """Seconds per stage, CG effort, particles and steps: what the run cost and where."""
     sim = result.simulation
@@ -212,7 +221,7 @@ def summary(result: RunResult) -> str:
     solver = sim.scene.solver
     lines.append(f"  quality {solver.quality}: cfl {solver.cfl:g}, cg_tolerance {solver.cg_tolerance:g}, "
                  f"{solver.particles_per_cell} particles per cell, refine {solver.refine} "
-                 f"(cell {sim.grid.dx:.4g} m); steps set by "
+                 f"(cell {sim.grid.dx:.4g} m), volume relaxation {_relaxation(solver, sim.grid.dx)}; steps set by "
                  + ", ".join(f"{name} {100 * n / max(sum(st.limited_by.values()), 1):.0f}%"  # this process's
                              for name, n in sorted(st.limited_by.items(), key=lambda kv: -kv[1])))  # steps: not resumed ones
     lines.append(f"  effects: {', '.join(sim.effects) or 'none (liquid only)'}")

@@ -50,7 +50,11 @@ MIN_VOLUME_RELAXATION = Limit(1.0e-3, "s: a faster correction turns the seeding 
                                      "0 turns it off")
 MAX_VOLUME_RELAXATION = Limit(1.0e3, "s: a correction slower than this undoes nothing a run can see; "
                                      "0 turns it off")
-DEFAULT_VOLUME_RELAXATION = 0.01  # s; why: docs/design.md, #volume-correction
+DEFAULT_VOLUME_RELAXATION = 0.01  # s, when no speed is set; why: docs/design.md, #volume-correction
+MIN_VOLUME_CORRECTION_SPEED = Limit(1.0e-2, "m/s: a relaxation of a second at 1 cm cells undoes nothing a run can "
+                                            "see; [solver].volume_relaxation_time = 0 turns the correction off")
+MAX_VOLUME_CORRECTION_SPEED = Limit(10.0, "m/s: the 1 ms floor at 1 cm cells; faster turns the seeding noise into "
+                                          "speeds of about 0.03-0.1 times it")
 MAX_STEPS_PER_FRAME = 100_000  # default [solver].max_steps_per_frame
 MAX_STEPS_LIMIT = Limit(1.0e8, "steps per frame: a setting above this disables the guard")
 
@@ -63,6 +67,8 @@ LIMITS = {  # key -> bound, for docs/api.md and the README
     "[domain].cell_size (min)": MIN_CELL, "[materials.*].gamma": MAX_GAMMA,
     "[solver].cg_max_iterations": MAX_CG_ITERATIONS, "[solver].volume_relaxation_time (min)": MIN_VOLUME_RELAXATION,
     "[solver].volume_relaxation_time (max)": MAX_VOLUME_RELAXATION,
+    "[solver].volume_correction_speed (min)": MIN_VOLUME_CORRECTION_SPEED,
+    "[solver].volume_correction_speed (max)": MAX_VOLUME_CORRECTION_SPEED,
 }
 
 

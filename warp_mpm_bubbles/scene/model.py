@@ -28,8 +28,8 @@ from ..core.grid import INTERFACES, PRECONDITIONERS
 from .limits import (
     DEFAULT_VOLUME_RELAXATION, MAX_CG_ITERATIONS, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY,
     MAX_PRESSURE, MAX_SPEED, MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_SURFACE_TENSION, MAX_VISCOSITY,
-    MAX_VOLUME_RELAXATION, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS, MIN_VOLUME_RELAXATION, check_sampling,
-    check_steps,
+    MAX_VOLUME_CORRECTION_SPEED, MAX_VOLUME_RELAXATION, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS,
+    MIN_VOLUME_CORRECTION_SPEED, MIN_VOLUME_RELAXATION, check_sampling, check_steps,
 )
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
@@ -210,8 +210,8 @@ _VOLUME_CORRECTION_REMOVED = (
     "volume_correction was a share of the excess undone per step, so its strength grew as the step "
     "shrank; it is replaced by [solver].volume_relaxation_time, a time in seconds (default "
     f"{DEFAULT_VOLUME_RELAXATION} s; the old share s at steps of dt is about dt / s, e.g. 0.3 at 10 ms "
-    "steps is 0.033 s). Remove volume_correction and set volume_relaxation_time, or 0 to turn the "
-    "correction off")
+    "steps is 0.033 s), or [solver].volume_correction_speed (the time is then the cell over it). Remove "
+    "volume_correction and set one of them, or volume_relaxation_time = 0 to turn the correction off")
 
 
 @dataclass
@@ -234,6 +234,9 @@ class SolverSettings:
         volume_relaxation_time: s (0.001..1000, default 0.01): a cell's over-fill (or, enclosed in
             liquid, under-fill) beyond the seeding noise is undone at excess / this per second, but
             never more than all of it in one step; 0 turns the correction off.
+        volume_correction_speed: m/s (0.01..10; None, the default: the fixed time above): makes the
+            relaxation time the simulated cell over it, so the volume drift converges with the grid,
+            at the price of correction speeds that do not (docs/design.md, #volume-correction).
         volume_correction: removed (it was a share per step, so its strength depended on dt); a
             scene that sets it is refused with the conversion to volume_relaxation_time.
         seed: seeds the jittered particle placement (a whole number >= 0).
@@ -252,7 +255,8 @@ class SolverSettings:
     interface: str = "sharp"  # gas-liquid faces: "sharp" (ghost fluid) or "baseline" (published method)
     liquid_velocity: str = "own"  # sharp interface: the liquid reads its own field extended into the gas, or "shared"
     gas_films: str = "retract"  # sharp interface with tension: sub-cell gas beside a bubble retracts into it
-    volume_relaxation_time: float = DEFAULT_VOLUME_RELAXATION  # s: excess undone at excess / this per second
+    volume_relaxation_time: float | None = None  # s: excess undone at excess / this per second; None: 0.01 or the speed's
+    volume_correction_speed: float | None = None  # m/s: tau = cell / this; None: the fixed time
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
     volume_correction: float | None = None  # removed: refused with the conversion (see _validate)
@@ -278,13 +282,34 @@ class SolverSettings:
         self.gas_films = c.choice(f"{t}.gas_films", self.gas_films, GAS_FILMS)
         if self.volume_correction is not None:
             c.fail(f"{t}.volume_correction", self.volume_correction, _VOLUME_CORRECTION_REMOVED)
-        tau = c.number(f"{t}.volume_relaxation_time", self.volume_relaxation_time, ge=0, le=MAX_VOLUME_RELAXATION)
-        self.volume_relaxation_time = tau if tau == 0 else c.number(  # 0: off
-            f"{t}.volume_relaxation_time", tau, ge=MIN_VOLUME_RELAXATION, le=MAX_VOLUME_RELAXATION)
+        self._validate_volume_relaxation(c, t)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, le=2**63 - 1, whole=True)
         self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
                                             le=MAX_STEPS_LIMIT, whole=True)
 
+
+    def _validate_volume_relaxation(self, c: _Checker, t: str):
+        """A fixed relaxation time (default 0.01 s), or a speed that ties it to the grid; not both."""
+        tau, speed = self.volume_relaxation_time, self.volume_correction_speed
+        if speed is not None:
+            if tau is not None:
+                c.fail(f"{t}.volume_correction_speed", speed,
+                       f"set either it or [solver].volume_relaxation_time (= {_g(tau)}), not both: the time is "
+                       f"fixed, the speed makes it the cell over the speed; remove one")
+            self.volume_correction_speed = c.number(f"{t}.volume_correction_speed", speed,
+                                                    ge=MIN_VOLUME_CORRECTION_SPEED, le=MAX_VOLUME_CORRECTION_SPEED)
+            return
+        tau = c.number(f"{t}.volume_relaxation_time", DEFAULT_VOLUME_RELAXATION if tau is None else tau,
+                       ge=0, le=MAX_VOLUME_RELAXATION)
+        self.volume_relaxation_time = tau if tau == 0 else c.number(  # 0: off
+            f"{t}.volume_relaxation_time", tau, ge=MIN_VOLUME_RELAXATION, le=MAX_VOLUME_RELAXATION)
+
+    def volume_relaxation(self, dx: float) -> float:
+        """The volume correction's relaxation time, s, on a grid of cell dx (0: off): the fixed time,
+        or dx / volume_correction_speed, whose drift converges with the grid."""
+        if self.volume_correction_speed is not None:
+            return dx / self.volume_correction_speed
+        return self.volume_relaxation_time
 
 @dataclass
 class Output:

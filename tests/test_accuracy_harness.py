@@ -58,6 +58,8 @@ def test_presets_apply_through_with_quality_and_refine_the_grid(tmp_path):
     case = harness.CASES["laplace"]
     scene = harness.build_scene(case, {"quality": "reference", "resolution": 8}, tmp_path)
     assert scene.solver.refine == 2 and scene.solver.cfl == 0.25
-    assert math.isclose(scene.domain.dx, harness.R0 / 16)
+    from accuracy_cases import R0  # the study's cases module, on sys.path once the harness is loaded
+
+    assert math.isclose(scene.domain.dx, R0 / 16)
     production = harness.build_scene(case, {"quality": "production", "resolution": 8, "cfl": 1.0}, tmp_path)
     assert production.validate().solver.refine == 1 and production.solver.cfl == 1.0

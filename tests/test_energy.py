@@ -102,7 +102,7 @@ def test_volume_correction_asks_its_rate_of_the_overfill(tmp_path, tau, dt, shar
     # volume correction's request, (phi - 1 - band) / max(tau, dt), to the CG tolerance: a share
     # dt / tau of the excess per step, but never more than all of it (MAX_VOLUME_SHARE). Bound 2%
     # (twice the rate is off by 100%).
-    from warp_mpm_bubbles.core.grid_kernels import VOLUME_NOISE_BAND
+    from warp_mpm_bubbles.core.volume_correction import VOLUME_NOISE_BAND
 
     scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16, gravity=(0.0, 0.0)),
                   materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (0.1, 0.1))],

@@ -1,67 +1,24 @@
 """Grid stages between the two transfers: momentum to velocity, cell types, boundary conditions,
 the pressure system's coefficients and right-hand side, the pressure gradient, and velocity
-extrapolation into the faces that the projection does not reach.
+extrapolation into the faces that the projection does not reach. The small cell helpers they
+share are in cells.py, the volume correction's excess and rate in volume_correction.py.
 
 Face ``f`` along axis ``a`` separates cell ``f - e_a`` (its low side) and cell ``f`` (its high side).
 Array-edge faces have a missing neighbour; they are treated as solid.
 """
-
-from typing import Any
 
 import warp as wp
 
 from .grid import (
     EMPTY, FLUID, INTERFACE_BASELINE, PHASE_GAS, PHASE_LIQUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN,
 )
+from .cells import HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trusted, fill_fraction, is_solid, unit
 from .lines import Lines, line_end, line_first, on_line
+from .volume_correction import cell_excess, is_hole
 
 wp.set_module_options({"enable_backward": False})
 
 MIN_SURFACE_FRACTION = wp.constant(0.1)
-VOLUME_NOISE_BAND = wp.constant(0.1)
-HOLE_FRACTION = wp.constant(0.25)
-
-
-@wp.func
-def unit(axis: int):
-    return wp.vec3i(int(axis == 0), int(axis == 1), int(axis == 2))
-
-
-@wp.func
-def block_size(dim: int):
-    """Cells in the 3^dim block around a cell (a 2D slab's block is 3 x 3)."""
-    if dim == 3:
-        return 27
-    return 9
-
-
-@wp.func
-def block_offset(q: int, dim: int):
-    """Offset q (0 <= q < block_size) of that block, in the order of loops over x, then y (, then z)."""
-    if dim == 3:
-        return wp.vec3i(q // 9 - 1, (q // 3) % 3 - 1, q % 3 - 1)
-    return wp.vec3i(q // 3 - 1, q % 3 - 1, 0)
-
-
-@wp.func
-def inside(a: wp.array3d(dtype=Any), c: wp.vec3i):
-    """Index c lies inside array a (any dtype: one definition per dtype used)."""
-    if c[0] < 0 or c[1] < 0 or c[2] < 0:
-        return False
-    return c[0] < a.shape[0] and c[1] < a.shape[1] and c[2] < a.shape[2]
-
-
-@wp.func
-def cell_type_at(types: wp.array3d(dtype=wp.int32), c: wp.vec3i):
-    """Type of cell c; outside the array counts as a free-slip solid."""
-    if not inside(types, c):
-        return SOLID_FREE_SLIP
-    return types[c[0], c[1], c[2]]
-
-
-@wp.func
-def is_solid(t: int):
-    return t >= SOLID_FREE_SLIP
 
 
 @wp.kernel
@@ -97,24 +54,6 @@ def momentum_to_velocity_at(
         vel[i, j, k] = mom[i, j, k] / m + dt * accel
     else:
         vel[i, j, k] = 0.0
-
-
-@wp.func
-def volume_fraction(cell_volume: wp.array3d(dtype=float), c: wp.vec3i, inv_cell_vol: float):
-    if not inside(cell_volume, c):
-        return 0.0
-    return cell_volume[c[0], c[1], c[2]] * inv_cell_vol
-
-
-@wp.func
-def fill_fraction(
-    liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i,
-    inv_cell_vol: float,
-):
-    phi = volume_fraction(liq_volume, c, inv_cell_vol)
-    if two_phase != 0:
-        phi += volume_fraction(gas_volume, c, inv_cell_vol)
-    return phi
 
 
 @wp.kernel
@@ -223,45 +162,6 @@ def surface_fraction(phi_fluid: float, phi_empty: float):
     if phi_fluid > phi_empty:
         theta = (phi_fluid - 0.5) / (phi_fluid - phi_empty)
     return wp.clamp(theta, MIN_SURFACE_FRACTION, 1.0)
-
-
-@wp.func
-def at(a: wp.array3d(dtype=float), c: wp.vec3i):
-    return a[c[0], c[1], c[2]]
-
-
-@wp.func
-def face_trusted(valid: wp.array3d(dtype=wp.int32), c: wp.vec3i):
-    """valid[c] == 1, false for a face outside the array."""
-    if not inside(valid, c):
-        return False
-    return valid[c[0], c[1], c[2]] == 1
-
-
-@wp.func
-def is_phase_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i, which: int):
-    """A fluid cell of phase `which` (cells outside the array are not)."""
-    if cell_type_at(types, c) == FLUID:  # nested: Warp evaluates both sides of `and`
-        if phase[c[0], c[1], c[2]] == which:
-            return True
-    return False
-
-
-@wp.func
-def cell_divergence(vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
-                    c: wp.vec3i, dim: int):
-    """A cell's net outflow through its faces, velocity units (div u dx): x and y, then z in 3D."""
-    i, j, k = c[0], c[1], c[2]
-    div = vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]
-    if dim == 3:
-        div += vel_w[i, j, k + 1] - vel_w[i, j, k]
-    return div
-
-
-@wp.func
-def is_liquid_cell(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32), c: wp.vec3i):
-    """A fluid cell on the liquid side of the interface (cells outside the array are not)."""
-    return is_phase_cell(types, phase, c, PHASE_LIQUID)
 
 
 @wp.kernel
@@ -445,63 +345,6 @@ def cell_compressibility(kv: float, vg: float, vl: float, interface: int):
     if interface != INTERFACE_BASELINE:
         kappa = kappa * vg / (vg + vl)
     return kappa
-
-
-MAX_VOLUME_SHARE = 1.0  # the most of a cell's excess one step may undo: more overshoots (and collapses)
-
-
-def volume_relaxation_rate(relaxation_time: float, dt: float) -> float:
-    """The volume correction's rate, 1/s (docs/design.md, #volume-correction): a cell's excess is
-    undone at excess / tau per second, tau = SolverSettings.volume_relaxation(dx) ([solver].volume_relaxation_time,
-    or the cell over [solver].volume_correction_speed), so the state at a time does not depend on the step; but never more than MAX_VOLUME_SHARE of it in one step, so no
-    setting (and no tiny step) overshoots. 0 turns the correction off."""
-    if relaxation_time <= 0.0:
-        return 0.0
-    return 1.0 / max(relaxation_time, dt / MAX_VOLUME_SHARE)
-
-
-@wp.func
-def volume_excess(vl: float, vg: float, enclosed: int, inv_dx2: float, dx: float):
-    """How far a liquid cell's rest-volume fraction phi = vl/dx^3 is beyond the seeding noise: the
-    over-fill past 1 + band, which the volume correction asks to expand; and where the cell has
-    liquid on every side (enclosed), the under-fill below 1 - band (gas vg counted as filling it),
-    which it asks to contract (near a surface, wall or gas, phi < 1 is legitimate and left alone)."""
-    phi = vl * inv_dx2 / dx
-    excess = wp.max(phi - 1.0 - VOLUME_NOISE_BAND, 0.0)
-    if enclosed == 1:
-        phi += vg * inv_dx2 / dx
-        excess = wp.min(phi - 1.0 + VOLUME_NOISE_BAND, 0.0) + excess
-    return excess
-
-
-@wp.func
-def is_hole(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i,
-            inv_dx3: float, pinned: int):
-    """A near-empty cell with no gas and no EMPTY neighbour is a hole inside the material
-    (core/voids.py): its deficit counts whatever its neighbours are, so the correction closes it."""
-    if pinned != 0 or fill_fraction(liq_volume, gas_volume, two_phase, c, inv_dx3) > HOLE_FRACTION:
-        return False
-    return two_phase == 0 or gas_volume[c[0], c[1], c[2]] == 0.0
-
-
-@wp.func
-def cell_excess(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                gas_kv: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float,
-                dx: float):
-    """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
-    gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its total
-    fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the correction
-    governs only then). The gas's own over-fill alone spread a bubble to 1.16 of its particles'
-    volume (nothing closed its under-filled cells), the liquid's alone piled it to 0.37 (issue #12's
-    3D tank). Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
-    held = liq_volume[c[0], c[1], c[2]]
-    gas_here = float(0.0)
-    if two_phase != 0:
-        gas_here = gas_volume[c[0], c[1], c[2]]
-        if gas_kv[c[0], c[1], c[2]] == 0.0:
-            held = held + gas_here
-            gas_here = 0.0
-    return volume_excess(held, gas_here, enclosed, inv_dx2, dx)
 
 
 @wp.kernel
@@ -755,14 +598,3 @@ def enforce_walls_at(
         vel[i, j, k] = 0.0
 
 
-@wp.func
-def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
-    """The index of the cell holding world position x (ghost layer included)."""
-    q = (x - origin) / dx
-    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
-
-
-@wp.func
-def cell_centre(c: wp.vec3i, origin: wp.vec3, dx: float):
-    """The world position of cell c's centre (the inverse of cell_of)."""
-    return origin + dx * wp.vec3(float(c[0]) + 0.5, float(c[1]) + 0.5, float(c[2]) + 0.5)

@@ -52,7 +52,7 @@ import math
 import warp as wp
 
 from .grid import EMPTY, FLUID
-from .grid_kernels import at, unit
+from .cells import at, unit
 from .lines import Lines, in_box, line_end, line_first, make_lines, on_line, split_lines
 from . import threads
 from .threads import Parallel

@@ -28,6 +28,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
@@ -354,7 +355,7 @@ class Simulation:
         self.launch(gk.pressure_diagonal_and_rhs, dims,
                     [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                      self.two_phase, self.interface, g.dx, dt, g.dim,
-                     gk.volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
+                     volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
                      f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, box])
 
     def _solve_pressure(self, dt: float):

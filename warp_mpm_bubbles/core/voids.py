@@ -43,7 +43,7 @@ import numpy as np
 import warp as wp
 
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
-from .grid_kernels import cell_type_at
+from .cells import cell_type_at
 from .lines import Lines, line_end, line_first, make_lines, on_line
 
 wp.set_module_options({"enable_backward": False})
@@ -358,7 +358,7 @@ class VoidPass:
         # Holes are cleared only in scenes without gas. With compressible gas, clearing the holes a
         # rising air bubble leaves drew its gas out into the wake (the largest bubble kept 22-41% of
         # the gas after five diameters instead of 67-73%; tests/test_gas.py). With incompressible
-        # gas the correction closes a hole by its own fill, as one medium (grid_kernels.cell_excess):
+        # gas the correction closes a hole by its own fill, as one medium (volume_correction.cell_excess):
         # cleared to liquid, a hole counted its whole cell as missing on top of its neighbours' share
         # of the same gap, and holes inside the bubble became liquid cells (issue #12, the 2D
         # benchmark at 40 cells: velocity jitter 0.0045 cleared, 0.0031 not).

@@ -15,7 +15,7 @@ import warp as wp
 from ..core.geometry import GridGeometry
 from ..core.grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
 from ..core.stage import Stage
-from ..core.grid_kernels import cell_centre, unit
+from ..core.cells import cell_centre, unit
 from ..core.transfer_kernels import clamp_to_domain
 
 wp.set_module_options({"enable_backward": False})

@@ -24,7 +24,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..core import grid_kernels as gk
+from ..core.cells import block_offset, block_size, cell_type_at
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.stage import Stage
@@ -72,11 +72,11 @@ def trapped_air(
     near_air = int(0)
     potential = float(0.0)
     weights = float(0.0)
-    for q in range(gk.block_size(dim)):
-        off = gk.block_offset(q, dim)
+    for q in range(block_size(dim)):
+        off = block_offset(q, dim)
         if off[0] == 0 and off[1] == 0 and off[2] == 0:
             continue
-        t = gk.cell_type_at(types, c + off)
+        t = cell_type_at(types, c + off)
         if t == EMPTY:
             near_air = 1  # there is air to trap
         if t != FLUID:

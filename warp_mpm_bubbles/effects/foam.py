@@ -26,7 +26,7 @@ import math
 
 import warp as wp
 
-from ..core import grid_kernels as gk
+from ..core.cells import cell_of, is_solid
 from ..core.geometry import GridGeometry
 from ..core.grid import PHASE_FOAM, PHASE_GAS
 from ..core.stage import Stage
@@ -57,7 +57,7 @@ def liquid_fraction(
         for j in range(3):
             for k in range(s.nk):
                 n = s.base + wp.vec3i(i, j, k)
-                if not gk.is_solid(types[n[0], n[1], n[2]]):
+                if not is_solid(types[n[0], n[1], n[2]]):
                     w = s.wx[i] * s.wy[j] * s.wz[k]
                     phi += w * liq_volume[n[0], n[1], n[2]]
                     weight += w
@@ -142,7 +142,7 @@ def gas_to_foam(
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    if not exposed_to_open_air(types, ceiling, gk.cell_of(x[p], origin, dx), up_axis, up_sign, dim):
+    if not exposed_to_open_air(types, ceiling, cell_of(x[p], origin, dx), up_axis, up_sign, dim):
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material

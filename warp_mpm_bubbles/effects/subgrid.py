@@ -43,7 +43,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..core import grid_kernels as gk
+from ..core.cells import cell_of
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
@@ -187,7 +187,7 @@ def advance_subgrid(
     if active[p] == 0 or phase[p] != PHASE_SUBGRID:
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    c = gk.cell_of(xp, origin, dx)
+    c = cell_of(xp, origin, dx)
     t = types[c[0], c[1], c[2]]
     leaves = t == FLUID and phase_cells[c[0], c[1], c[2]] == PHASE_GAS
     if t == EMPTY:

@@ -27,7 +27,7 @@ import warp as wp
 
 from ..core.geometry import GridGeometry
 from ..core.grid import FLUID, PHASE_GAS
-from ..core.grid_kernels import cell_of, cell_type_at, is_solid, unit
+from ..core.cells import cell_of, cell_type_at, is_solid, unit
 from ..core.transfer_kernels import CELL_OFFSET, clamp_to_domain, grid_coord, make_stencil
 
 wp.set_module_options({"enable_backward": False})

@@ -13,7 +13,7 @@ Each kernel walks a line of cells a thread (core/lines.py) and writes only the c
 import warp as wp
 
 from ..core.grid import EMPTY
-from ..core.grid_kernels import inside, is_solid, unit
+from ..core.cells import inside, is_solid, unit
 from ..core.lines import Lines, in_box, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})

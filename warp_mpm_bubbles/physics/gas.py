@@ -25,7 +25,7 @@ import warp as wp
 from ..core import grid_kernels as gk
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
-from ..core.grid_kernels import cell_of, cell_type_at, unit
+from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
 from ..core.stage import Stage
 from ..core.transfer_kernels import (CELL_OFFSET, GAS_ADIABATIC, clamp_to_domain, gas_pressure, gas_volume_rate,
                                      grid_coord, make_stencil, p2g_gas, update_gas_J)
@@ -150,7 +150,7 @@ def keep_phase_faces(
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     valid[i, j, k] = 0
-    if gk.is_phase_cell(types, phase, lo, keep) or gk.is_phase_cell(types, phase, hi, keep):
+    if is_phase_cell(types, phase, lo, keep) or is_phase_cell(types, phase, hi, keep):
         valid[i, j, k] = trusted
 
 
@@ -254,7 +254,7 @@ def gas_cell_expansion(
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
     if types[i, j, k] != FLUID or phase[i, j, k] != PHASE_GAS or cavity[i, j, k] == CAVITY_GAS:
         return
-    div = gk.cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
+    div = cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
     wp.atomic_max(out, slot, wp.abs(div / dx - target_div[i, j, k]))
 
 

@@ -16,7 +16,7 @@ import warp as wp
 from ..core.geometry import GridGeometry
 from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
-from ..core.grid_kernels import (
+from ..core.cells import (
     block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
 from ..core.lines import Lines, line_end, line_first, make_lines, on_line

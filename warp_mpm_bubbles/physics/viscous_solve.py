@@ -28,7 +28,7 @@ import math
 import warp as wp
 
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
-from ..core.grid_kernels import cell_type_at, inside, is_solid, unit
+from ..core.cells import cell_type_at, inside, is_solid, unit
 from ..core.pressure import SolveInfo
 
 wp.set_module_options({"enable_backward": False})

@@ -98,7 +98,6 @@ class SolverSettings:
         self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
                                             le=MAX_STEPS_LIMIT, whole=True)
 
-
     def _validate_volume_relaxation(self, c: _Checker, t: str):
         """A fixed relaxation time (default 0.01 s), or a speed that ties it to the grid; not both."""
         tau, speed = self.volume_relaxation_time, self.volume_correction_speed

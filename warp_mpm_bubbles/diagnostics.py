@@ -85,15 +85,25 @@ def bubble_volumes(positions, is_gas, volumes, dx: float, cells, dim: int) -> np
     return np.sort(np.bincount(inverse, weights=volumes[keep]))[::-1]
 
 
-def void_cells(types, ghost, up) -> int:
+def void_cells(types, ghost, up, gaps=None) -> int:
     """Empty cells inside the liquid (issue #12): particle-free cells (grid.EMPTY) whose empty region
     is not open air. A face-connected empty region is open air when it reaches an open wall (its
     empty ghost cells) or the domain's top layer (against gravity; without gravity, any side).
     In a filled tank every empty cell is a void; above a free surface none is.
 
     types: the cell types of the last step (sim.fields.types.numpy()), ghost: sim.grid.ghost,
-    up: sim.up ((axis, sign); axis -1 without gravity)."""
-    return len(closed_empty_cells(np.asarray(types), ghost, up)[0])
+    up: sim.up ((axis, sign); axis -1 without gravity). gaps: a boolean cell array of the empty cells
+    that are a bubble's gaps (sim.voids.gap_mask(): particle-free cells beside compressible gas, left
+    EMPTY for the gas to fill): connected to a gas region, not closed off in the liquid, so left out."""
+    cells = closed_empty_cells(np.asarray(types), ghost, up)[0]
+    if gaps is not None and len(cells):
+        cells = cells[~np.asarray(gaps)[tuple(cells.T)]]
+    return len(cells)
+
+
+def gap_cells(sim) -> int:
+    """This step's bubble gaps (see void_cells): particle-free cells beside a bubble's compressible gas."""
+    return len(sim.voids.gap_cells)
 
 
 # --------------------------------------------------------------------- shape: circularity, sphericity

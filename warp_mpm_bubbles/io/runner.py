@@ -169,15 +169,21 @@ def _surface(sim: Simulation, builder):
 
 
 def _voids_line(sim: Simulation) -> str:
-    """Particle-free regions closed off from the open air that the step made liquid (core/voids.py):
-    the most at one step in any frame, and how many frames had some (no extra device read)."""
+    """Particle-free regions closed off from the open air and from any gas (core/voids.py): the most at
+    one step in any frame, and how many frames had some; then the bubble gaps, particle-free cells beside
+    compressible gas (no extra device read)."""
     v = sim.voids
+    gaps = ""
+    if v.gaps_by_frame:
+        frame, worst = max(v.gaps_by_frame.items(), key=lambda kv: (kv[1], -kv[0]))
+        gaps = (f"; bubble gaps (particle-free cells beside the air, left for its gas to fill) in "
+                f"{len(v.gaps_by_frame)} frames, at most {worst} cells at one step (frame {frame})")
     if not v.by_frame:
-        return "  voids: none (no particle-free cell inside the liquid read as free surface)"
+        return f"  voids: none (no particle-free cell inside the liquid read as free surface){gaps}"
     frame, worst = max(v.by_frame.items(), key=lambda kv: (kv[1], -kv[0]))
     trapped = f", {v.pockets} trapped air pockets became bubbles" if v.pockets else ""
     return (f"  voids: {len(v.by_frame)} frames had cells closed off inside the liquid (at most {worst} at one "
-            f"step, frame {frame}), filled as liquid{trapped}")
+            f"step, frame {frame}), filled as liquid{trapped}{gaps}")
 
 
 def _relaxation(solver, dx: float) -> str:

@@ -177,7 +177,7 @@ def _voids_line(sim: Simulation) -> str:
     if v.gaps_by_frame:
         frame, worst = max(v.gaps_by_frame.items(), key=lambda kv: (kv[1], -kv[0]))
         gaps = (f"; bubble gaps (particle-free cells beside the air, left for its gas to fill) in "
-                f"{len(v.gaps_by_frame)} frames, at most {worst} cells at one step (frame {frame})")
+                f"{len(v.gaps_by_frame)} frames, at most {worst} cell{'s' * (worst != 1)} at one step (frame {frame})")
     if not v.by_frame:
         return f"  voids: none (no particle-free cell inside the liquid read as free surface){gaps}"
     frame, worst = max(v.by_frame.items(), key=lambda kv: (kv[1], -kv[0]))

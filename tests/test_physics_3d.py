@@ -49,11 +49,12 @@ def laplace_run(tmp_path, cells, bubble):
 
 def test_3d_drop_pressure_is_two_sigma_over_r(tmp_path):
     # 24^3, R = 6 cells. Mean over SAMPLES of p_inside / (2 sigma / R), measured (seeds 0-3):
-    # 0.9688, 0.9725, 0.9732, 0.9770 (height-function curvature). Low by 3% at 6 cells per radius;
-    # with the grid (mean over 0.02-0.2 s): 0.963, 0.979, 0.982, 0.988 at 6, 8, 10, 12 cells, where
-    # div(n) of the smoothed fraction went 1.007, 1.000, 0.992, 0.986, away from 1. Bound
-    # [0.955, 0.99]: the seed spread (+-0.4%) with 2x margin, and tight enough that sigma x0.97
-    # (-> 0.940) or x1.03 (-> 0.998) fails; the curvature without its z terms gives 0.84.
+    # 0.9769, 0.9837, 0.9819, 0.9848 (height-function curvature, best-centred columns). Low by 2% at
+    # 6 cells per radius; with the grid (the same samples): 0.977, 0.990, 0.993, 0.9955 at 6, 8, 10,
+    # 12 cells (uncentred columns, over 0.02-0.2 s: 0.963, 0.979, 0.982, 0.988; div(n) of the smoothed
+    # fraction 1.007, 1.000, 0.992, 0.986, away from 1). Bound [0.955, 0.99]: the seeds with 0.5%
+    # margin above, and tight enough that sigma x0.97 (-> 0.948) or x1.03 (-> 1.006) fails; the
+    # curvature without its z terms gives 0.84.
     sim, ratios, _ = laplace_run(tmp_path, 24, bubble=False)
     print(f"3D drop, 24^3: p_inside / (2 sigma/R) = {np.round(ratios, 4)}, mean {ratios.mean():.4f}")
     assert 0.955 < ratios.mean() < 0.99, ratios
@@ -62,11 +63,12 @@ def test_3d_drop_pressure_is_two_sigma_over_r(tmp_path):
 
 def test_3d_bubble_jump_is_two_sigma_over_r(tmp_path):
     # 32^3, R = 6.4 cells, the bubble inside a liquid ball of 2R. Mean jump / (2 sigma / R), measured
-    # (seeds 0-3): 1.0114, 1.0121, 1.0138, 1.0151 (height-function curvature). With the grid: 1.061,
-    # 1.042, 1.011, 1.003 at 4, 5, 6.4, 8 cells per radius (order 2; div(n) of the smoothed fraction
-    # gave 1.107, 1.090, 1.067, 1.053). Bound [0.995, 1.03]: the seed spread with 1.5% margin, so
-    # sigma x0.97 (-> 0.981) and x1.03 (-> 1.042) fail. The liquid ball sits at its own
-    # 2 sigma / (2R): measured 0.978-0.992, bound 5% (a difference of two jumps on the same grid).
+    # (seeds 0-3): 1.0188, 1.0172, 1.0166, 1.0190 (height-function curvature, best-centred columns).
+    # With the grid: 1.059, 1.051, 1.019, 1.012 at 4, 5, 6.4, 8 cells per radius (uncentred columns
+    # 1.061, 1.042, 1.011, 1.003; div(n) of the smoothed fraction 1.107, 1.090, 1.067, 1.053). Bound
+    # [0.995, 1.03]: the seeds with 1% margin, so sigma x0.97 (-> 0.988) and x1.03 (-> 1.049) fail.
+    # The liquid ball sits at its own 2 sigma / (2R): measured 0.983-0.996, bound 5% (a difference of
+    # two jumps on the same grid).
     sim, ratios, shell = laplace_run(tmp_path, 32, bubble=True)
     print(f"3D bubble, 32^3: jump / (2 sigma/R) = {np.round(ratios, 4)}, mean {ratios.mean():.4f}; "
           f"liquid / (2 sigma/2R) = {np.round(shell, 4)}")

@@ -158,6 +158,32 @@ def height_curvature(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int,
     return wp.vec2(num / (dx * wp.pow(1.0 + hb * hb + ht * ht, 1.5)), 1.0)
 
 
+CENTRING_SHIFT = 2  # the most cells centred_column moves along the axis (the band is about +-2 cells)
+
+
+@wp.func
+def centred_column(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, liquid_up: float, dim: int):
+    """The cell along `axis` from c whose column the surface crosses nearest its centre. A column centred
+    two cells off the surface holds its smoothed transition near one end, truncated, and its height
+    reads off (docs/convergence.md, "The curvature estimate"); every cell of the band measures the
+    same stretch of surface, so each takes the curvature of the best-centred column (Popinet 2009).
+    `liquid_up` > 0 where the liquid lies towards +axis. c itself where its column is not valid or
+    the move would leave the interior."""
+    h = heights[c[0], c[1], c[2]][axis]
+    if h < 0.0:
+        return c
+    half = float(COLUMN_HALF) + 0.5  # the column spans [-half, half] about c's centre, in cells
+    d = h - half  # the surface's offset from c's centre: liquid fills the column from its low end
+    if liquid_up > 0.0:
+        d = half - h  # from its high end
+    shift = wp.clamp(int(wp.round(d)), -CENTRING_SHIFT, CENTRING_SHIFT)
+    moved = c + unit(axis) * shift
+    for a in range(3):
+        if a < dim and (moved[a] < 1 or moved[a] > heights.shape[a] - 2):
+            return c
+    return moved
+
+
 @wp.kernel
 def surface_curvature(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
                       heights: wp.array3d(dtype=wp.vec3), dx: float, dim: int, curvature: wp.array3d(dtype=float),
@@ -220,7 +246,7 @@ def surface_curvature_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dt
         axis = 1
     if dim == 3 and wp.abs(grad[2]) > wp.abs(grad[axis]):
         axis = 2
-    kh = height_curvature(heights, c, axis, dim, dx)
+    kh = height_curvature(heights, centred_column(heights, c, axis, grad[axis], dim), axis, dim, dx)
     # div(n) = (|g|^2 tr(H) - g^T H g) / |g|^3
     kappa = (g2 * wp.trace(hess) - wp.dot(grad, hess * grad)) / (g2 * wp.sqrt(g2))
     if kh[1] > 0.0:

@@ -21,7 +21,7 @@ from ..core.cells import (
 )
 from ..core.lines import Lines, line_end, line_first, make_lines, on_line
 from ..core.transfer_kernels import clamp_to_domain
-from .curvature import CURVATURE_AVERAGING, average_curvature, column_heights, height_fraction, surface_curvature
+from .curvature import CENTRING_SHIFT, CURVATURE_AVERAGING, average_curvature, column_heights, height_fraction, surface_curvature
 
 wp.set_module_options({"enable_backward": False})
 
@@ -351,8 +351,10 @@ class TensionStage(Stage):
         sim.launch_lines(height_fraction, cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
                                                   int(sim.has_gas), self.fraction])
         lo, hi = r.box
-        start = [max(a - 1, 0) for a in lo]  # the box grown by a cell: the curvature reads neighbours' columns
-        end = [min(b + 1, n) for b, n in zip(hi, g.cells)]
+        # The box grown: the curvature reads the columns beside its best-centred one, which is up to
+        # CENTRING_SHIFT cells off along the axis.
+        start = [max(a - CENTRING_SHIFT, 0) for a in lo]
+        end = [min(b + CENTRING_SHIFT, n) for b, n in zip(hi, g.cells)]
         sim.launch_lines(column_heights, make_lines(start, end, g.dim, sim.device),
                          [self.fraction, f.types, g.dim, r.lo, wp.vec3i(*hi), self.heights])
         kappa, spare = self.kappa, self.kappa_tmp

@@ -164,9 +164,9 @@ CENTRING_SHIFT = 2  # the most cells centred_column moves along the axis (the ba
 @wp.func
 def centred_column(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, liquid_up: float, dim: int):
     """The cell along `axis` from c whose column the surface crosses nearest its centre. A column centred
-    two cells off the surface holds its smoothed transition near one end, truncated, and its height
-    reads off (docs/convergence.md, "The curvature estimate"); every cell of the band measures the
-    same stretch of surface, so each takes the curvature of the best-centred column (Popinet 2009).
+    two cells off the surface holds the surface's transition near one end, truncated, and its height
+    reads off (docs/convergence.md, "Best-centred height columns"); every cell of the band measures
+    the same stretch of surface, so each takes the curvature of the best-centred column (Popinet 2009).
     `liquid_up` > 0 where the liquid lies towards +axis. c itself where its column is not valid or
     the move would leave the interior."""
     h = heights[c[0], c[1], c[2]][axis]

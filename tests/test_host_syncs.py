@@ -9,6 +9,7 @@ from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSetting
 from warp_mpm_bubbles.core.host_reads import HostReads
 from warp_mpm_bubbles.core.grid import PHASE_GAS, PHASE_SUBGRID
 from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.core.threads import CACHE_LINE_FLOATS
 from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
@@ -94,7 +95,9 @@ def test_gas_and_tension_step_reads_the_boxes_once(tmp_path):
         if sim.stats.steps == 1:  # the gas's start pressure, read once before any step's read-back exists
             assert other.pop("physics.gas") == 1
         assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
-        assert reads.elements["core.active_box"] == 12
+        # the grid box and the gas's (6 ints each) from each of the CPU's particle ranges (a cache
+        # line each), in one read
+        assert reads.elements["core.active_box"] == CACHE_LINE_FLOATS * sim.parallel.threads
         assert_solver_within_bound(reads, iterations, solves)
 
 

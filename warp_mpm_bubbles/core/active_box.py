@@ -28,6 +28,7 @@ import warp as wp
 
 from .grid import PHASE_GAS
 from .lines import make_lines
+from .threads import CACHE_LINE_FLOATS, Parallel, split
 
 wp.set_module_options({"enable_backward": False})
 
@@ -35,9 +36,10 @@ BOX_MARGIN = 4  # cells around the particles' cells: 3 needed (docstring), 1 spa
 
 
 @wp.kernel
-def reset_bounds(box: wp.array(dtype=wp.int32)):
+def reset_bounds(box: wp.array(dtype=wp.int32), stride: int):
+    """Bounds of nothing: in each group of `stride` values, (big, big, big, -1, -1, -1) repeated."""
     t = wp.tid()
-    if t % 6 < 3:
+    if (t % stride) % 6 < 3:
         box[t] = 2147483647
     else:
         box[t] = -1
@@ -45,20 +47,22 @@ def reset_bounds(box: wp.array(dtype=wp.int32)):
 
 @wp.kernel
 def particle_cell_bounds(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), phase: wp.array(dtype=wp.int32),
-                         origin: wp.vec3, inv_dx: float, shape: wp.vec3i, box: wp.array(dtype=wp.int32)):
-    """box[0:3], box[3:6] = smallest and largest cell (clamped to the arrays) of an active particle;
-    box[6:12] the same of the resolved gas's (PHASE_GAS) particles."""
-    p = wp.tid()
+                         origin: wp.vec3, inv_dx: float, shape: wp.vec3i, first: int, box: wp.array(dtype=wp.int32),
+                         slot: int):
+    """Over particles first + tid: box[slot + 0:3], box[slot + 3:6] = smallest and largest cell
+    (clamped to the arrays) of an active particle; box[slot + 6:12] the same of the resolved gas's
+    (PHASE_GAS) particles."""
+    p = wp.tid() + first
     if active[p] == 0:
         return
     gas = phase[p] == PHASE_GAS
     for a in range(3):
         c = wp.clamp(int(wp.floor((x[p][a] - origin[a]) * inv_dx)), 0, shape[a] - 1)
-        wp.atomic_min(box, a, c)
-        wp.atomic_max(box, 3 + a, c)
+        wp.atomic_min(box, slot + a, c)
+        wp.atomic_max(box, slot + 3 + a, c)
         if gas:
-            wp.atomic_min(box, 6 + a, c)
-            wp.atomic_max(box, 9 + a, c)
+            wp.atomic_min(box, slot + 6 + a, c)
+            wp.atomic_max(box, slot + 9 + a, c)
 
 
 def union(a, b):
@@ -99,11 +103,12 @@ class ActiveRegion(LaunchBox):
     the margin, no union: what the gas writes there it rewrites every step). Disabled (`enabled=False`):
     both are the whole grid, and `update` reads nothing."""
 
-    def __init__(self, grid, device, enabled: bool = True, margin: int = BOX_MARGIN):
+    def __init__(self, grid, device, enabled: bool = True, margin: int = BOX_MARGIN, parallel: Parallel | None = None):
         super().__init__(grid.cells, device)
         self.enabled, self.margin = enabled, margin
         self.origin, self.inv_dx = wp.vec3(*grid.origin), 1.0 / grid.dx
-        self.bounds = wp.zeros(12, dtype=wp.int32, device=device)
+        self.parallel = parallel or Parallel(1)  # ranges of particles, each with its own 12 bounds
+        self.bounds = wp.zeros(CACHE_LINE_FLOATS * self.parallel.threads, dtype=wp.int32, device=device)
         self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
         self.host_reads = 0
         self.particle_count = 0  # the particles the boxes were taken from (later ones may lie outside)
@@ -133,13 +138,19 @@ class ActiveRegion(LaunchBox):
         if not self.enabled:
             return
         self.particle_count = particles.count
-        wp.launch(reset_bounds, 12, inputs=[self.bounds], device=self.device)
-        if particles.count:
-            wp.launch(particle_cell_bounds, particles.count, device=self.device,
-                      inputs=[particles.x, particles.active, particles.phase, self.origin, self.inv_dx,
-                              wp.vec3i(*self.shape), self.bounds])
-        b = self.bounds.numpy()
+        wp.launch(reset_bounds, self.bounds.shape[0], inputs=[self.bounds, CACHE_LINE_FLOATS], device=self.device)
+        args = [particles.x, particles.active, particles.phase, self.origin, self.inv_dx, wp.vec3i(*self.shape)]
+        cuts = split(0, particles.count, self.parallel.threads)
+        calls = [lambda a=a, n=b - a, q=q: wp.launch(particle_cell_bounds, n, device=self.device,
+                                                      inputs=[*args, a, self.bounds, CACHE_LINE_FLOATS * q])
+                 for q, (a, b) in enumerate(zip(cuts, cuts[1:])) if b > a]
+        if calls:
+            self.parallel.run(calls)
+        parts = self.bounds.numpy().reshape(-1, CACHE_LINE_FLOATS)[:, :12]  # minima and maxima: exact in any order
         self.host_reads += 1
+        b = parts.max(axis=0)
+        for lo in (0, 6):
+            b[lo:lo + 3] = parts[:, lo:lo + 3].min(axis=0)
         current = self._grown(b[:6])
         self._set(union(current, self.previous))
         self.gas._set(self._grown(b[6:]))

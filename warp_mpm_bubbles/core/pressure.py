@@ -23,8 +23,9 @@ import warp as wp
 
 from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
-from .lines import Lines, line_end, line_first, make_lines, on_line
+from .lines import Lines, line_end, line_first, make_lines, on_line, split_lines
 from .multigrid import MultigridPreconditioner
+from .threads import SPLIT_CELLS, Parallel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -54,15 +55,41 @@ def preconditioned(r: float, diag: float, mode: int):
 # Slots of a row of the solver's per-iteration scalars (float64, one row per iteration, on the device).
 R_SUM, RR, RZ, DAD, RZ_MG, Z_SUM = range(6)
 ROW = 8
-# Slots of `scalars`: sums over the right-hand side and the solution, kept apart from the rows.
-B_SUM, B2, X_SUM = range(3)
+# Slots of `scalars` (one row): sums over the right-hand side and the solution, kept apart from the rows.
+B_SUM, B_SUM_SHIFTED, B2, X_SUM = range(4)
 # info[]: done flag, iterations completed, and its relative residual squared (float bits below).
 DONE, ITERS = range(2)
 
 
+# Sums (the dot products) in a fixed order whatever the threads: each thread adds its line's sum
+# (accumulated in order along the line) into the partial sum of the line's plane, planes[x - plane0,
+# slot]; a slab of planes is one thread's, so each plane sums its lines in order; then one thread adds
+# the planes in order (sum_planes) and zeroes them for the next sum. On a GPU (a cell a thread) the
+# planes' atomics run in any order.
+@wp.func
+def add_to_plane(planes: wp.array2d(dtype=wp.float64), plane0: int, first: wp.vec3i, slot: int, value: wp.float64):
+    if value != wp.float64(0.0):
+        wp.atomic_add(planes, first[0] - plane0, slot, value)
+
+
+@wp.kernel
+def sum_planes(done: wp.array(dtype=wp.int32), planes: wp.array2d(dtype=wp.float64), n: int, first_slot: int,
+               count: int, out: wp.array2d(dtype=wp.float64), row: int, out_slot: int):
+    """One thread: out[row, out_slot + t] = the sum of planes[0:n, first_slot + t] in plane order, for t
+    in [0, count); those planes zeroed."""
+    if done[0] != 0:
+        return
+    for t in range(count):
+        total = wp.float64(0.0)
+        for q in range(n):
+            total += planes[q, first_slot + t]
+            planes[q, first_slot + t] = wp.float64(0.0)
+        out[row, out_slot + t] = total
+
+
 @wp.kernel
 def apply_operator(
-    box: Lines,
+    walk: Lines,
     done: wp.array(dtype=wp.int32),
     types: wp.array3d(dtype=wp.int32),
     diag: wp.array3d(dtype=float),
@@ -71,33 +98,51 @@ def apply_operator(
     inv_rho_w: wp.array3d(dtype=float),
     inv_dx2: float,
     dim: int,
+    inside: int,
     p: wp.array3d(dtype=float),
     out: wp.array3d(dtype=float),
-    dots: wp.array2d(dtype=wp.float64),
-    row: int,
+    planes: wp.array2d(dtype=wp.float64),
+    plane0: int,
 ):
-    """out = A p on fluid cells of the box (0 elsewhere in it); dots[row, DAD] += p . A p."""
+    """out = A p on the fluid cells of `walk` (0 elsewhere in it); planes[.., DAD] += p . A p.
+
+    inside = 1: p is 0 on every cell of the fluid box that is not FLUID (the solver keeps x, d and z
+    so) and every fluid cell's face neighbours lie in the arrays (no fluid cell on their outer layer,
+    as the ghost layer ensures): the neighbours are read without a test, an empty or solid one adding
+    w * 0 (solid faces have w = 0 as well), which is the tested sum bit for bit. 0: each neighbour is
+    tested (fluid_value)."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    dot = wp.float64(0.0)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         if types[i, j, k] != FLUID:
             out[i, j, k] = 0.0
             continue
-        # Neighbours that are not fluid contribute nothing: empty ones are p = 0, solid faces have 1/rho = 0.
-        n = inv_rho_u[i, j, k] * fluid_value(types, p, i - 1, j, k)
-        n += inv_rho_u[i + 1, j, k] * fluid_value(types, p, i + 1, j, k)
-        n += inv_rho_v[i, j, k] * fluid_value(types, p, i, j - 1, k)
-        n += inv_rho_v[i, j + 1, k] * fluid_value(types, p, i, j + 1, k)
-        if dim == 3:
-            n += inv_rho_w[i, j, k] * fluid_value(types, p, i, j, k - 1)
-            n += inv_rho_w[i, j, k + 1] * fluid_value(types, p, i, j, k + 1)
+        n = float(0.0)
+        if inside == 1:
+            n = inv_rho_u[i, j, k] * p[i - 1, j, k]
+            n += inv_rho_u[i + 1, j, k] * p[i + 1, j, k]
+            n += inv_rho_v[i, j, k] * p[i, j - 1, k]
+            n += inv_rho_v[i, j + 1, k] * p[i, j + 1, k]
+            if dim == 3:
+                n += inv_rho_w[i, j, k] * p[i, j, k - 1]
+                n += inv_rho_w[i, j, k + 1] * p[i, j, k + 1]
+        else:
+            n = inv_rho_u[i, j, k] * fluid_value(types, p, i - 1, j, k)
+            n += inv_rho_u[i + 1, j, k] * fluid_value(types, p, i + 1, j, k)
+            n += inv_rho_v[i, j, k] * fluid_value(types, p, i, j - 1, k)
+            n += inv_rho_v[i, j + 1, k] * fluid_value(types, p, i, j + 1, k)
+            if dim == 3:
+                n += inv_rho_w[i, j, k] * fluid_value(types, p, i, j, k - 1)
+                n += inv_rho_w[i, j, k + 1] * fluid_value(types, p, i, j, k + 1)
         Ap = diag[i, j, k] * p[i, j, k] - n * inv_dx2
         out[i, j, k] = Ap
-        wp.atomic_add(dots, row, DAD, wp.float64(p[i, j, k] * Ap))
+        dot += wp.float64(p[i, j, k] * Ap)
+    add_to_plane(planes, plane0, first, DAD, dot)
 
 
 @wp.kernel
@@ -122,49 +167,58 @@ def mask_and_bound(region: Lines, types: wp.array3d(dtype=wp.int32), x: wp.array
 
 
 @wp.kernel
-def fluid_sums(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-               x: wp.array3d(dtype=float), sums: wp.array(dtype=wp.float64), slot: int, square_slot: int):
-    """sums[slot] += sum of x over the fluid cells; sums[square_slot] += x . x (if square_slot >= 0)."""
+def fluid_sums(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+               x: wp.array3d(dtype=float), squares: int, planes: wp.array2d(dtype=wp.float64), plane0: int):
+    """planes[.., 0] += the sum of x over the fluid cells; planes[.., 1] += x . x if `squares`."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    total = wp.float64(0.0)
+    square_sum = wp.float64(0.0)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         if types[c[0], c[1], c[2]] == FLUID:
             v = x[c[0], c[1], c[2]]
-            wp.atomic_add(sums, slot, wp.float64(v))
-            if square_slot >= 0:
-                wp.atomic_add(sums, square_slot, wp.float64(v * v))
+            total += wp.float64(v)
+            square_sum += wp.float64(v * v)
+    add_to_plane(planes, plane0, first, 0, total)
+    if squares != 0:
+        add_to_plane(planes, plane0, first, 1, square_sum)
 
 
 @wp.kernel
-def fluid_dot(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-              x: wp.array3d(dtype=float), y: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64), row: int):
-    """dots[row, RZ_MG] += x . y, dots[row, Z_SUM] += sum of y over fluid cells."""
+def fluid_dot(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+              x: wp.array3d(dtype=float), y: wp.array3d(dtype=float), planes: wp.array2d(dtype=wp.float64),
+              plane0: int):
+    """planes[.., RZ_MG] += x . y, planes[.., Z_SUM] += the sum of y over the fluid cells."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    dot = wp.float64(0.0)
+    total = wp.float64(0.0)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         if types[i, j, k] == FLUID:
-            wp.atomic_add(dots, row, RZ_MG, wp.float64(x[i, j, k] * y[i, j, k]))
-            wp.atomic_add(dots, row, Z_SUM, wp.float64(y[i, j, k]))
+            dot += wp.float64(x[i, j, k] * y[i, j, k])
+            total += wp.float64(y[i, j, k])
+    add_to_plane(planes, plane0, first, RZ_MG, dot)
+    add_to_plane(planes, plane0, first, Z_SUM, total)
 
 
 @wp.kernel
-def shift_fluid(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-                x: wp.array3d(dtype=float), sums: wp.array(dtype=wp.float64), slot: int, n: int):
-    """x -= sums[slot] / n on the fluid cells: removes the mean when sums[slot] is x's sum over n cells."""
+def shift_fluid(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+                x: wp.array3d(dtype=float), sums: wp.array2d(dtype=wp.float64), row: int, slot: int, n: int):
+    """x -= sums[row, slot] / n on the fluid cells: removes the mean when that is x's sum over n cells."""
     if done[0] != 0:
         return
-    shift = float(-sums[slot] / wp.float64(n))
+    shift = float(-sums[row, slot] / wp.float64(n))
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         if types[i, j, k] == FLUID:
             x[i, j, k] = x[i, j, k] + shift
@@ -172,7 +226,7 @@ def shift_fluid(box: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dt
 
 @wp.kernel
 def start_iteration(
-    box: Lines,
+    walk: Lines,
     done: wp.array(dtype=wp.int32),
     b: wp.array3d(dtype=float),
     Ax: wp.array3d(dtype=float),
@@ -180,28 +234,35 @@ def start_iteration(
     mode: int,
     r: wp.array3d(dtype=float),
     d: wp.array3d(dtype=float),
-    dots: wp.array2d(dtype=wp.float64),
+    planes: wp.array2d(dtype=wp.float64),
+    plane0: int,
 ):
-    """r = b - A x, d = M^-1 r; row 0 of dots: sum r, r . r, r . M^-1 r."""
+    """r = b - A x, d = M^-1 r; planes: sum r, r . r, r . M^-1 r."""
     if done[0] != 0:
         return
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    r_sum = wp.float64(0.0)
+    rr = wp.float64(0.0)
+    rz = wp.float64(0.0)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         res = b[i, j, k] - Ax[i, j, k]
         z = preconditioned(res, diag[i, j, k], mode)
         r[i, j, k] = res
         d[i, j, k] = z
-        wp.atomic_add(dots, 0, R_SUM, wp.float64(res))
-        wp.atomic_add(dots, 0, RR, wp.float64(res * res))
-        wp.atomic_add(dots, 0, RZ, wp.float64(res * z))
+        r_sum += wp.float64(res)
+        rr += wp.float64(res * res)
+        rz += wp.float64(res * z)
+    add_to_plane(planes, plane0, first, R_SUM, r_sum)
+    add_to_plane(planes, plane0, first, RR, rr)
+    add_to_plane(planes, plane0, first, RZ, rz)
 
 
 @wp.kernel
 def step_solution(
-    box: Lines,
+    walk: Lines,
     done: wp.array(dtype=wp.int32),
     dots: wp.array2d(dtype=wp.float64),
     row: int,
@@ -213,9 +274,11 @@ def step_solution(
     x: wp.array3d(dtype=float),
     r: wp.array3d(dtype=float),
     z: wp.array3d(dtype=float),
+    planes: wp.array2d(dtype=wp.float64),
+    plane0: int,
 ):
-    """alpha = rz / d.Ad from the device; x += alpha d, r -= alpha A d, z = M^-1 r; row: sum r, r . r, r . z.
-    Nothing if d.Ad <= 0 (the search direction lost positivity: round-off at convergence)."""
+    """alpha = rz / d.Ad from the device; x += alpha d, r -= alpha A d, z = M^-1 r; planes: sum r, r . r,
+    r . z. Nothing if d.Ad <= 0 (the search direction lost positivity: round-off at convergence)."""
     if done[0] != 0:
         return
     dAd = dots[row, DAD]
@@ -223,28 +286,34 @@ def step_solution(
         return
     alpha = float(dots[row - 1, rz_slot] / dAd)
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    r_sum = wp.float64(0.0)
+    rr = wp.float64(0.0)
+    rz = wp.float64(0.0)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
         res = r[i, j, k] - alpha * Ad[i, j, k]
         zz = preconditioned(res, diag[i, j, k], mode)
         r[i, j, k] = res
         z[i, j, k] = zz
-        wp.atomic_add(dots, row, R_SUM, wp.float64(res))
-        wp.atomic_add(dots, row, RR, wp.float64(res * res))
-        wp.atomic_add(dots, row, RZ, wp.float64(res * zz))
+        r_sum += wp.float64(res)
+        rr += wp.float64(res * res)
+        rz += wp.float64(res * zz)
+    add_to_plane(planes, plane0, first, R_SUM, r_sum)
+    add_to_plane(planes, plane0, first, RR, rr)
+    add_to_plane(planes, plane0, first, RZ, rz)
 
 
 @wp.kernel
-def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.array(dtype=wp.float64),
+def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.array2d(dtype=wp.float64),
                       tol2: wp.float64, done: wp.array(dtype=wp.int32), info: wp.array(dtype=wp.float64)):
     """One thread: after iteration `row` (0: the start), record it and raise `done` once
     ||r||^2 <= tol2 ||b||^2, if b = 0, or if the iteration broke down (then it does not count)."""
     if done[0] != 0:
         return
-    b2 = sums[B2]
+    b2 = sums[0, B2]
     if b2 == wp.float64(0.0):
         done[0] = 1
         info[DONE] = wp.float64(1.0)
@@ -265,27 +334,27 @@ def check_convergence(dots: wp.array2d(dtype=wp.float64), row: int, sums: wp.arr
 
 
 @wp.kernel
-def zero_if_trivial(box: Lines, sums: wp.array(dtype=wp.float64), x: wp.array3d(dtype=float)):
+def zero_if_trivial(walk: Lines, sums: wp.array2d(dtype=wp.float64), x: wp.array3d(dtype=float)):
     """b = 0 on every fluid cell: the solution is x = 0."""
-    if sums[B2] == wp.float64(0.0):
+    if sums[0, B2] == wp.float64(0.0):
         ti, tj, tk = wp.tid()
-        first = line_first(box, ti, tj, tk)
-        for s in range(first[box.axis], line_end(box, first)):
-            c = on_line(first, box.axis, s)
+        first = line_first(walk, ti, tj, tk)
+        for s in range(first[walk.axis], line_end(walk, first)):
+            c = on_line(first, walk.axis, s)
             x[c[0], c[1], c[2]] = 0.0
 
 
 @wp.kernel
-def update_direction(box: Lines, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64), row: int,
+def update_direction(walk: Lines, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64), row: int,
                      rz_slot: int, z: wp.array3d(dtype=float), d: wp.array3d(dtype=float)):
     """d = z + beta d with beta = rz(row) / rz(row - 1), from the device."""
     if done[0] != 0:
         return
     beta = float(dots[row, rz_slot] / dots[row - 1, rz_slot])
     ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
+    first = line_first(walk, ti, tj, tk)
+    for s in range(first[walk.axis], line_end(walk, first)):
+        c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
 
@@ -348,13 +417,18 @@ class PressureSolver:
     launches over the whole grid instead (same arithmetic, for tests and benchmarks).
 
     No host read per iteration: alpha and beta are computed by the kernels from float64 dot products
-    that they accumulate into one device row per iteration (on the CPU the atomics run in thread
-    order, so results are deterministic). A one-thread kernel raises a device flag at convergence,
-    after which every kernel returns at once; the host reads the flag (with the iteration count and
-    residual) first after as many iterations as the last solve took (consecutive warm-started steps
-    take about as many: usually that one read is all), then every `check_every` iterations; up to
-    check_every - 1 iterations past convergence are launched as no-ops. That is a fixed launch sequence per chunk, which a CUDA graph can capture
-    (wp.capture_while on the flag would make the loop itself device-side).
+    that they accumulate into one device row per iteration, plane by plane of the box then the planes
+    in order (sum_planes), so on the CPU the sums do not depend on the threads. A one-thread kernel
+    raises a device flag at convergence, after which every kernel returns at once; the host reads the
+    flag (with the iteration count and residual) first after as many iterations as the last solve
+    took (consecutive warm-started steps take about as many: usually that one read is all), then every
+    `check_every` iterations; up to check_every - 1 iterations past convergence are launched as no-ops.
+    That is a fixed launch sequence per chunk, which a CUDA graph can capture (wp.capture_while on the
+    flag would make the loop itself device-side).
+
+    On the CPU the cell kernels run in slabs of planes on the threads of `parallel` when the box holds
+    SPLIT_CELLS or more cells; every launch of a solve is recorded once and replayed (Warp packs a
+    launch's arguments in Python), the iteration's row set on the recorded launch.
     """
 
     def __init__(self, shape, dim: int, dx: float, device, *, active_box: bool = True,
@@ -367,23 +441,47 @@ class PressureSolver:
         zeros = lambda: wp.zeros(shape, dtype=float, device=device)  # noqa: E731
         self.r, self.z, self.d, self.Ad = zeros(), zeros(), zeros(), zeros()
         self.rows = wp.zeros((0, ROW), dtype=wp.float64, device=device)  # grown to max_iter + 1 rows
-        self.scalars = wp.zeros(ROW, dtype=wp.float64, device=device)
+        self.scalars = wp.zeros((1, ROW), dtype=wp.float64, device=device)
+        self.planes = wp.zeros((shape[0], ROW), dtype=wp.float64, device=device)  # per-plane partial sums
         self.done = wp.zeros(1, dtype=wp.int32, device=device)
         self.info = wp.zeros(3, dtype=wp.float64, device=device)
         self.bounds = wp.zeros(6, dtype=wp.int32, device=device)
         self.multigrid = None  # built on first use
-        self.parallel = parallel  # the CPU's threads for the V-cycle's large launches (core/threads.py)
+        self.parallel = parallel or Parallel(1)  # the CPU's threads for the large launches (core/threads.py)
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
         self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
 
-    def _launch(self, kernel, inputs, dim=None):
-        wp.launch(kernel, dim or self.dims, inputs=inputs, device=self.device)
+    def _record(self, kernel, inputs, dims=None):
+        """One recorded launch of `kernel` (its inputs as given): a stage of one part."""
+        return [wp.launch(kernel, dims or 1, inputs=inputs, device=self.device, record_cmd=True)]
+
+    def _record_cells(self, kernel, inputs):
+        """Recorded launches of a cell kernel over the box, its first argument the walk: slabs of planes,
+        one a thread, when the box is large enough to split (core/threads.py); a stage."""
+        parts = self.parallel.threads if math.prod(self.dims) * self.lines.length >= SPLIT_CELLS else 1
+        return [wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
+                for walk, d in split_lines(self.lines, self.dims, parts)]
+
+    def _run(self, stage, row=None):
+        """Replay a stage's launches at once (setting `row` first, for the kernels that take one)."""
+        if row is not None:
+            for launch in stage:
+                launch.set_param_by_name("row", row)
+        if len(stage) == 1:
+            stage[0].launch()
+        else:
+            self.parallel.run([launch.launch for launch in stage])
+
+    def _reduce(self, first_slot: int, count: int, out, out_slot: int):
+        """A stage: out[row, out_slot + t] = the planes' sum of slot first_slot + t (sum_planes)."""
+        n = self.box[1][0] - self.box[0][0]
+        return self._record(sum_planes, [self.done, self.planes, n, first_slot, count, out, 0, out_slot])
 
     def _find_box(self, types, x, region):
         """Mask x to the fluid cells and set self.box to the fluid bounding box grown by one cell."""
         lo, hi = region or ((0, 0, 0), self.shape)
-        wp.launch(reset_bounds, 6, inputs=[self.bounds], device=self.device)
+        wp.launch(reset_bounds, 6, inputs=[self.bounds, 6], device=self.device)
         walk, dims = make_lines(lo, hi, self.dim, self.device)
         wp.launch(mask_and_bound, dims, inputs=[walk, types, x, self.bounds], device=self.device)
         if not self.active_box:
@@ -396,28 +494,26 @@ class PressureSolver:
             else:
                 self.box = (tuple(max(int(b[a]) - 1, 0) for a in range(3)),
                             tuple(min(int(b[3 + a]) + 2, self.shape[a]) for a in range(3)))
+        # apply_operator reads neighbours untested when no fluid cell lies on the arrays' outer layer:
+        # the box then holds a layer of non-fluid cells around them (it is never clipped).
+        lo, hi = self.box
+        self.inside = int(all(lo[a] > 0 and hi[a] < self.shape[a] for a in range(self.dim)))
         self.lines, self.dims = make_lines(*self.box, self.dim, self.device)
-
-    def _v_cycle(self, types, r, z, row: int, n_project: int):
-        """z = M^-1 r by the multigrid V-cycle; dots[row] gets r . z and the sum of z.
-
-        n_project > 0 (a singular system with that many fluid cells): r and z are first projected
-        onto the range (mean zero). Round-off leaves r a small constant part, which the V-cycle
-        would amplify (the constant is its near-null direction) and CG then loses orthogonality.
-        """
-        box, done, rows = self.lines, self.done, self.rows
-        if n_project:
-            self._launch(shift_fluid, [box, done, types, r, rows[row], R_SUM, n_project])
-        self.multigrid.apply(r, z)
-        self._launch(fluid_dot, [box, done, types, r, z, rows, row])
-        if n_project:
-            self._launch(shift_fluid, [box, done, types, z, rows[row], Z_SUM, n_project])
 
     def _check(self):
         """Read the device's flag, iteration count and residual: the only read while iterating."""
         self.host_reads += 1
         info = self.info.numpy()
         return info[DONE] != 0.0, int(info[ITERS]), float(info[2])
+
+    def _sum_fluid(self, types, v, out_slot: int, squares: bool):
+        """scalars[out_slot] = the sum of v over the fluid cells (and scalars[out_slot + 1] = v . v)."""
+        self._run(self._record_cells(fluid_sums, [self.done, types, v, int(squares), self.planes, self.box[0][0]]))
+        self._run(self._reduce(0, 2 if squares else 1, self.scalars, out_slot))
+
+    def _center(self, types, v, sums, row: int, slot: int, n: int):
+        """v -= its mean over the n fluid cells, when sums[row, slot] is its sum."""
+        self._run(self._record_cells(shift_fluid, [self.done, types, v, sums, row, slot, n]))
 
     def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, singular: bool, n_fluid: int,
               preconditioner: str = "multigrid", region=None):
@@ -432,43 +528,69 @@ class PressureSolver:
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
             self.rows = wp.zeros((max_iter + 1, ROW), dtype=wp.float64, device=self.device)
-        box, done, rows, sums = self.lines, self.done, self.rows, self.scalars
+        done, rows, sums, planes, plane0 = self.done, self.rows, self.scalars, self.planes, self.box[0][0]
         for a in (rows, sums, done, self.info):
             a.zero_()
         project = n_fluid if singular else 0
         if project:  # closed tank: only b's component orthogonal to constants is reachable
-            self._launch(fluid_sums, [box, done, types, b, sums, B_SUM, -1])
-            self._launch(shift_fluid, [box, done, types, b, sums, B_SUM, project])
-        self._launch(fluid_sums, [box, done, types, b, sums, 3, B2])
-        self._launch(zero_if_trivial, [box, sums, x])
+            self._sum_fluid(types, b, B_SUM, squares=False)
+            self._center(types, b, sums, 0, B_SUM, project)
+        self._sum_fluid(types, b, B_SUM_SHIFTED, squares=True)
+        self._run(self._record_cells(zero_if_trivial, [sums, x]))
         if mode == MULTIGRID:
             if self.multigrid is None:
                 self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device,
                                                          parallel=self.parallel)
             self.multigrid.build(system, self.box, done)
-        apply = lambda p, out, row: self._launch(  # noqa: E731
-            apply_operator, [box, done, types, diag, *inv_rho, self.inv_dx2, self.dim, p, out, rows, row])
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
         tol2 = wp.float64(tol * tol)
+        operator = [done, types, diag, *inv_rho, self.inv_dx2, self.dim, self.inside]
+        apply_d = self._record_cells(apply_operator, [*operator, self.d, self.Ad, planes, plane0])
+        reduce_dAd = self._reduce(DAD, 1, rows, DAD)
+        step = self._record_cells(step_solution, [done, rows, 0, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
+                                                  self.z, planes, plane0])
+        reduce_step = self._reduce(R_SUM, 3, rows, R_SUM)
+        check = self._record(check_convergence, [rows, 0, sums, tol2, done, self.info])
+        dot_z = self._record_cells(fluid_dot, [done, types, self.r, self.z, planes, plane0])
+        reduce_dot = self._reduce(RZ_MG, 2, rows, RZ_MG)
+        update = self._record_cells(update_direction, [done, rows, 0, rz_slot, self.z, self.d])
 
-        apply(x, self.Ad, 0)  # its p . A p lands in row 0's DAD slot, which nothing reads
-        self._launch(start_iteration, [box, done, b, self.Ad, diag, mode, self.r, self.d, rows])
-        self._launch(check_convergence, [rows, 0, sums, tol2, done, self.info], dim=1)
+        def precondition(r, z, row, dot):
+            """z = M^-1 r by the V-cycle; rows[row] gets r . z and the sum of z. A singular system's r
+            and z are first projected onto the range (mean zero): round-off leaves r a small constant
+            part, which the V-cycle would amplify (the constant is its near-null direction) and CG then
+            loses orthogonality."""
+            if project:
+                self._center(types, r, rows, row, R_SUM, project)
+            self.multigrid.apply(r, z)
+            self._run(dot)
+            self._run(reduce_dot, row)
+            if project:
+                self._center(types, z, rows, row, Z_SUM, project)
+
+        # Row 0: r = b - A x, d = M^-1 r. A x's p . A p lands in row 0's DAD slot, which nothing reads.
+        self._run(self._record_cells(apply_operator, [*operator, x, self.Ad, planes, plane0]))
+        self._run(reduce_dAd, 0)
+        self._run(self._record_cells(start_iteration, [done, b, self.Ad, diag, mode, self.r, self.d, planes,
+                                                       plane0]))
+        self._run(reduce_step, 0)
+        self._run(check, 0)
         if mode == MULTIGRID:
-            self._v_cycle(types, self.r, self.d, 0, project)
+            precondition(self.r, self.d, 0, self._record_cells(fluid_dot, [done, types, self.r, self.d, planes, plane0]))
         # Chunks of iterations between reads: the first as long as the last solve took (warm-started
         # steps take about as many), then check_every. Iterations past convergence are no-ops.
         row, stop, chunk = 0, False, self.predicted
         while not stop and row < max_iter:
             for _ in range(min(chunk, max_iter - row)):
                 row += 1
-                apply(self.d, self.Ad, row)
-                self._launch(step_solution, [box, done, rows, row, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
-                                             self.z])
-                self._launch(check_convergence, [rows, row, sums, tol2, done, self.info], dim=1)
+                self._run(apply_d)
+                self._run(reduce_dAd, row)
+                self._run(step, row)
+                self._run(reduce_step, row)
+                self._run(check, row)
                 if mode == MULTIGRID:
-                    self._v_cycle(types, self.r, self.z, row, project)
-                self._launch(update_direction, [box, done, rows, row, rz_slot, self.z, self.d])
+                    precondition(self.r, self.z, row, dot_z)
+                self._run(update, row)
             stop, it, rel2 = self._check()
             chunk = self.check_every
         if row == 0:  # max_iter == 0
@@ -476,7 +598,7 @@ class PressureSolver:
         self.predicted = max(it, 1)
         if project:
             done.zero_()
-            self._launch(fluid_sums, [box, done, types, x, sums, X_SUM, -1])
-            self._launch(shift_fluid, [box, done, types, x, sums, X_SUM, project])
+            self._sum_fluid(types, x, X_SUM, squares=False)
+            self._center(types, x, sums, 0, X_SUM, project)
         rel = math.sqrt(rel2)
         return SolveInfo(it, rel, rel <= tol)

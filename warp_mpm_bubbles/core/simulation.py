@@ -112,7 +112,8 @@ class Simulation:
         self.particles = ParticleState(self.device)
         self.fields = GridFields(g, self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
-        self.speed_parts = wp.zeros(self.parallel.threads, dtype=float, device=self.device)
+        # g2p parts' fastest speeds, a cache line apart: each part writes its slot for every particle
+        self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
         self._loaded: set = set()  # kernels launched once already (_launch_parts)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
@@ -123,7 +124,7 @@ class Simulation:
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
-        self.region = ActiveRegion(g, self.device,
+        self.region = ActiveRegion(g, self.device, parallel=self.parallel,
                                    enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
 
@@ -407,9 +408,10 @@ class Simulation:
         # One part per thread: particles are independent; their largest speed, combined exactly.
         self.speed_parts.zero_()
         cuts = split(0, p.count, self.parallel.threads)
-        self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q])
+        line = threads.CACHE_LINE_FLOATS
+        self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
                                                 for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
-        self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, f.max_speed])
+        self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
 
     def launch_lines(self, kernel, lines, inputs):
         """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and

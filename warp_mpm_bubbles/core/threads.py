@@ -4,9 +4,13 @@ The parts are chosen so that the results do not depend on how many there are:
 - g2p: ranges of particles, which are independent (only their largest speed is combined, exactly);
 - p2g: disjoint slabs of grid nodes along x, each part visiting the particles in the same order, so
   every node sums its contributions in particle order whatever the split;
-- the grid stages and the V-cycle's smoothing, restriction and prolongation over a large box (lines
-  of cells, core/lines.py): slabs of lines, for kernels that write only the cells they walk. The
-  pressure system's assembly and the CG's dot products accumulate sums, and stay one launch.
+- the grid stages, the V-cycle's smoothing, restriction, prolongation and coarse operators, and the
+  CG's vector kernels over a large box (lines of cells, core/lines.py): slabs of lines, for kernels
+  that write only the cells they walk. The CG's dot products are summed per plane of the box (a
+  plane is one slab's) and then over the planes in order (core/pressure.py), so they too are the
+  same for any number of slabs. The pressure system's assembly counts cells and stays one launch;
+- the particles' bounding box (core/active_box.py): ranges of particles, each with its own minima
+  and maxima, combined exactly.
 
 Threads: `WARP_MPM_CPU_THREADS` if set (1: one launch, as before), else the cores this process may
 use, at most MAX_THREADS. On a GPU there is one launch.
@@ -21,6 +25,9 @@ MAX_THREADS = 8  # p2g's parts each scan every particle's position: the scan's s
 # A launch over a box this large (cells or faces) runs in slabs, one a thread: smaller ones cost less
 # than the hand-off (about 30 us a launch; a 40^3 box's red-black half-sweep takes about 500 us).
 SPLIT_CELLS = 16384
+# Values that parts update for every particle (their fastest speed, their bounds) lie this many 4-byte
+# words apart, a cache line: side by side, two cores writing them would pass the line back and forth.
+CACHE_LINE_FLOATS = 16
 
 
 def cpu_threads() -> int:

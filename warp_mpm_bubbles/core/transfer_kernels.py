@@ -590,10 +590,10 @@ def _g2p_kernel(dim: int):
 
 
 @wp.kernel(enable_backward=False)
-def fastest_of_parts(parts: wp.array(dtype=float), n: int, max_speed: wp.array(dtype=float)):
-    """max_speed[0] = the largest of the g2p parts' speeds (one thread)."""
+def fastest_of_parts(parts: wp.array(dtype=float), n: int, stride: int, max_speed: wp.array(dtype=float)):
+    """max_speed[0] = the largest of the g2p parts' speeds, parts[q * stride] (one thread)."""
     for q in range(n):
-        wp.atomic_max(max_speed, 0, parts[q])
+        wp.atomic_max(max_speed, 0, parts[q * stride])
 
 
 P2G = {2: _p2g_kernel(2), 3: _p2g_kernel(3)}

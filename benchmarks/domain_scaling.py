@@ -180,10 +180,12 @@ def solve_only(sim, base, repeats: int) -> dict:
     import time
 
     from warp_mpm_bubbles.core.pressure import PressureSystem
+    from warp_mpm_bubbles.core.threads import CACHE_LINE_FLOATS
 
     f, g, settings = sim.fields, sim.grid, sim.scene.solver
     system = PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag)
-    n_fluid, n_pinned = (int(c) for c in f.counters.numpy())
+    counts = f.counters.numpy().reshape(-1, CACHE_LINE_FLOATS)  # one group per part of the assembly
+    n_fluid, n_pinned = int(counts[:, 0].sum()), int(counts[:, 1].sum())
     make = {"whole_grid": lambda: PressureSolver(g.cells, g.dim, g.dx, sim.device, active_box=False),
             "box": lambda: PressureSolver(g.cells, g.dim, g.dx, sim.device)}
     if base is not None:

@@ -18,10 +18,15 @@ from test_subgrid import splash_scene
 
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
-# The step's own reads: the solve's cell counts with the non-finite count (3 ints), and the
-# read-back at its end, the fastest particle with entrainment's count, the gas's two step measures
-# and whether a cavity may exist (5 floats).
-STEP_READS, STEP_ELEMENTS = 2, 8
+# The step's own reads: the solve's cell counts with the non-finite count (3 ints in a cache line per
+# part of the system's assembly: one part a CPU thread), and the read-back at its end, the fastest
+# particle with entrainment's count, the gas's two step measures and whether a cavity may exist
+# (5 floats).
+STEP_READS = 2
+
+
+def step_elements(sim):
+    return CACHE_LINE_FLOATS * sim.parallel.threads + 5
 
 
 def liquid_scene(tmp_path):
@@ -73,7 +78,7 @@ def test_liquid_only_step_reads_two_small_arrays_besides_the_solver(tmp_path):
         # any is left, the cell types and the sweeps' marks
         assert 1 <= other.pop("core.voids") <= 4
         assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
-        assert reads.elements["core.simulation"] == STEP_ELEMENTS
+        assert reads.elements["core.simulation"] == step_elements(sim)
         assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} == {
             ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step"), ("core.active_box", "update"),
             ("core.voids", "find")}
@@ -119,7 +124,7 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
         # Entrainment, emitters, colliders, foam, gas, tension: no read at all (the gas's step measures
         # ride on the step's read-back).
         assert set(modules) <= {"core.simulation", "effects.subgrid", *SOLVER_MODULES}, modules
-        assert modules["core.simulation"] == STEP_READS and reads.elements["core.simulation"] == STEP_ELEMENTS
+        assert modules["core.simulation"] == STEP_READS and reads.elements["core.simulation"] == step_elements(sim)
         assert_solver_within_bound(reads, iterations, solves)
         if sim.stats.steps % 2:
             assert "effects.subgrid" not in modules

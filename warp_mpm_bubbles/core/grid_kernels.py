@@ -372,6 +372,7 @@ def pressure_diagonal_and_rhs(
     rhs: wp.array3d(dtype=float),
     target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
+    slot: int,
     box: Lines,
 ):
     """Diagonal and right-hand side of the one two-phase system (docs/design.md, #pressure-equation), per fluid cell c:
@@ -383,14 +384,14 @@ def pressure_diagonal_and_rhs(
     cells whose rest-volume fraction phi is beyond the seeding noise to expand (over-full) or
     contract (under-full and enclosed), which stops the slow volume loss of particle clustering;
     volume_rate = volume_relaxation_rate(tau, dt) is a rate, 1/s, so the state does not depend on dt.
-    counters[0] counts fluid cells, counters[1] those that pin the pressure level (an empty
+    counters[slot] counts fluid cells, counters[slot + 1] those that pin the pressure level (an empty
     neighbour or kappa > 0): with none, the system is singular and the solver projects out the constant.
     """
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     for s in range(first[box.axis], line_end(box, first)):
         c = on_line(first, box.axis, s)
-        pressure_diagonal_and_rhs_at(types, phase, inv_rho_u, inv_rho_v, inv_rho_w, vel_u, vel_v, vel_w, liq_volume, gas_volume, gas_pv, gas_kv, two_phase, interface, dx, dt, dim, volume_rate, diag, extra_diag, rhs, target_div, counters, c[0], c[1], c[2])
+        pressure_diagonal_and_rhs_at(types, phase, inv_rho_u, inv_rho_v, inv_rho_w, vel_u, vel_v, vel_w, liq_volume, gas_volume, gas_pv, gas_kv, two_phase, interface, dx, dt, dim, volume_rate, diag, extra_diag, rhs, target_div, counters, slot, c[0], c[1], c[2])
 
 
 @wp.func
@@ -418,6 +419,7 @@ def pressure_diagonal_and_rhs_at(
     rhs: wp.array3d(dtype=float),
     target_div: wp.array3d(dtype=float),
     counters: wp.array(dtype=wp.int32),
+    slot: int,
     i: int,
     j: int,
     k: int,
@@ -458,8 +460,8 @@ def pressure_diagonal_and_rhs_at(
     diag[i, j, k] = d * inv_dx2 + extra
     extra_diag[i, j, k] = extra
     rhs[i, j, k] = b
-    wp.atomic_add(counters, 0, 1)
-    wp.atomic_add(counters, 1, pinned)
+    wp.atomic_add(counters, slot, 1)
+    wp.atomic_add(counters, slot + 1, pinned)
 
 
 @wp.kernel

@@ -110,8 +110,8 @@ class Simulation:
         self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64)}
         self._init_geometry()
         self.particles = ParticleState(self.device)
-        self.fields = GridFields(g, self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
+        self.fields = GridFields(g, self.device, parts=self.parallel.threads)
         # g2p parts' fastest speeds, a cache line apart: each part writes its slot for every particle
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
         self._loaded: set = set()  # kernels launched once already (_launch_parts)
@@ -353,16 +353,20 @@ class Simulation:
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
         box, dims = r.cell_lines
-        self.launch(gk.pressure_diagonal_and_rhs, dims,
-                    [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
-                     self.two_phase, self.interface, g.dx, dt, g.dim,
-                     volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
-                     f.diag, f.extra_diag, f.rhs, f.target_div, f.counters, box])
+        inputs = [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
+                  self.two_phase, self.interface, g.dx, dt, g.dim,
+                  volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
+                  f.diag, f.extra_diag, f.rhs, f.target_div, f.counters]
+        # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
+        parts = self.parallel.threads if math.prod(dims) * box.length >= threads.SPLIT_CELLS else 1
+        self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
+                                                          for q, (slab, d) in enumerate(split_lines(box, dims, parts))])
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
-        n_fluid, n_pinned, bad = (int(c) for c in self.read_host(f.counters))
+        counts = self.read_host(f.counters).reshape(-1, threads.CACHE_LINE_FLOATS)
+        n_fluid, n_pinned, bad = int(counts[:, 0].sum()), int(counts[:, 1].sum()), int(counts[0, 2])
         if bad:
             raise SimulationError(
                 f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {bad} particles entered p2g with a "

@@ -19,6 +19,7 @@ import numpy as np
 import warp as wp
 
 from .geometry import GridGeometry
+from .threads import CACHE_LINE_FLOATS
 
 # The per-particle arrays every scene has: position (m), velocity (m/s), APIC affine matrix (1/s),
 # mass (kg), rest volume (m^3), J = volume / rest volume, grid.PHASE_*, 1 while simulated (0:
@@ -183,7 +184,7 @@ class ParticleState:
 class GridFields:
     """The grid arrays of one MacGrid on `device` (see the module docstring)."""
 
-    def __init__(self, grid, device):
+    def __init__(self, grid, device, parts: int = 1):
         self.grid, self.device = grid, device
         faces, cells = self.faces, self.cells
         self.mom, self.face_mass, self.vel, self.inv_rho = faces(), faces(), faces(), faces()
@@ -202,8 +203,9 @@ class GridFields:
         self.target_div, self.gas_rate = placeholder(), placeholder()
         self.ceiling = placeholder(wp.int32)
         self.gas_vel = self.gas_valid = None  # the gas's own face field (sharp interface, own liquid field)
-        # fluid cells, pinned cells (pressure_diagonal_and_rhs), then a copy of nonfinite: one read
-        self.counters = wp.zeros(3, dtype=wp.int32, device=device)
+        # fluid cells, pinned cells (pressure_diagonal_and_rhs), then a copy of nonfinite: one read.
+        # One such group a cache line apart per part of the assembly (core/threads.py), added on the host.
+        self.counters = wp.zeros(parts * CACHE_LINE_FLOATS, dtype=wp.int32, device=device)
         # The step's one read-back: [0] fastest particle this step, [1] bubbles entrained this step,
         # [2] the gas's largest |gauge pressure|, [3] its fastest volume change rate, [4] whether a
         # cavity may exist next step (physics/gas.py)

@@ -2,13 +2,17 @@
 over the frame's steps; and, apart, the bubble gaps (particle-free cells beside the compressible air,
 connected to a gas region: VoidPass.gap_mask). Prints them and writes benchmarks/results/pour_voids.json.
 
-    python benchmarks/pour_voids.py --frames 90      # the whole example, 6-8 min on 2 CPU cores
+    python benchmarks/pour_voids.py --frames 90      # the whole example, 3-8 min on 2 CPU cores
 
 Measured 2026-12-02 (issue #12): before the void pass (b8f0711) 22 of 30 frames had void cells at
 their end, at most 146, 1,192 in all; after it 7 frames, at most 7, 17 in all, all of them gaps
 beside the air. 2026-12-04, voids and gaps apart, 90 frames: no void at any frame's end; within a
-frame at most 61 (a trapped pocket's one step before its gas), in 13 frames; gaps at most 66 cells
-(docs/design.md, #voids).
+frame at most 61 (a trapped pocket's one step before its gas), in 13 frames; gaps at most 66 cells.
+2026-12-05, at e72e2a6 (a pocket still EMPTY for its first step): voids within 21 of the first 87
+frames, at most 1,045 cells at one step (frame 83; 61 in the first 30 frames), gaps up to 1,708
+cells, and the run diverged at frame 88. Trapped air made gas in the step it is found (the step
+splats again): no void at any step of the 90 frames; gaps at most 96 cells (68 in the first 30),
+2,216 in all (the per-frame maxima summed). docs/design.md, #voids.
 """
 import argparse
 import json

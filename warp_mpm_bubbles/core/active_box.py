@@ -18,8 +18,9 @@ stage is box-aware (`Stage.grid_box`: gas, surface tension).
 The same read brings the box of the resolved gas's particles (`ActiveRegion.gas`, with the same
 margin, no union): the gas's own velocity field and its cells' volume change are read only by gas
 particles and gas cells, so the gas computes them on that box alone (physics/gas.py). Outside it
-they keep stale values, which nothing reads, except on a step where the void pass seeded trapped air
-after the read: then `gas_box` is the whole grid.
+they keep stale values, which nothing reads. A step where the void pass seeds trapped air reads the
+boxes again (`update(again=True)`) before it splats again; should the second pass seed more, `gas_box`
+is the whole grid.
 """
 
 from __future__ import annotations
@@ -110,6 +111,7 @@ class ActiveRegion(LaunchBox):
         self.parallel = parallel or Parallel(1)  # ranges of particles, each with its own 12 bounds
         self.bounds = wp.zeros(CACHE_LINE_FLOATS * self.parallel.threads, dtype=wp.int32, device=device)
         self.previous = ((0, 0, 0), self.shape)  # the first step covers the whole grid
+        self._before = self.previous  # the previous step's box while this step's is read (update(again=True))
         self.host_reads = 0
         self.particle_count = 0  # the particles the boxes were taken from (later ones may lie outside)
         self.gas, self.whole = LaunchBox(self.shape, device), LaunchBox(self.shape, device)
@@ -133,10 +135,15 @@ class ActiveRegion(LaunchBox):
         return (tuple(max(int(b[a]) - self.margin, 0) for a in range(3)),
                 tuple(min(int(b[3 + a]) + 1 + self.margin, self.shape[a]) for a in range(3)))
 
-    def update(self, particles):
-        """This step's box from the particles (before p2g, which splats within it), united with the previous step's."""
+    def update(self, particles, again: bool = False):
+        """This step's box from the particles (before p2g, which splats within it), united with the previous step's.
+        again: the same step's box once more, after particles were added to it (trapped air that the
+        void pass seeded: Simulation.step splats again), still united with the previous step's."""
         if not self.enabled:
             return
+        if again:
+            self.previous = self._before
+        self._before = self.previous
         self.particle_count = particles.count
         wp.launch(reset_bounds, self.bounds.shape[0], inputs=[self.bounds, CACHE_LINE_FLOATS], device=self.device)
         args = [particles.x, particles.active, particles.phase, self.origin, self.inv_dx, wp.vec3i(*self.shape)]

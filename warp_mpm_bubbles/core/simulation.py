@@ -219,13 +219,9 @@ class Simulation:
     # ------------------------------------------------------------------------------ the step
     def step(self, dt: float):
         self._run("begin_step", dt)  # emitters
-        with self.timer("p2g"):
-            self._sort_if_due()
-            self.region.update(self.particles)  # one read: the box the grid stages cover
-            self.particles_to_grid(self.region)
-            self._run("after_p2g", dt)  # gas sums
-        with self.timer("grid"):
-            self._grid_velocity_and_cells(dt)
+        self._splat_and_classify(dt)
+        if self.voids.seeded:  # trapped air seeded in this step's cells: splat again, so this solve sees its gas
+            self._splat_and_classify(dt, again=True)
         self._run("force", dt)  # viscosity, surface tension
         with self.timer("grid"):
             self._assemble_pressure_system(dt)
@@ -240,6 +236,21 @@ class Simulation:
         self._run("after_g2p", dt)  # films, entrainment, sub-grid bubbles, foam, venting
         self._run("end_step", dt)  # colliders push particles out
         self._end_step(dt)
+
+    def _splat_and_classify(self, dt: float, again: bool = False):
+        """p2g, the grid velocities and the cell types (the void pass last). again: once more in the
+        same step, after the void pass seeded trapped air (core/voids.py): the step then goes on as
+        if the gas had been there from its start, so the solve sees the pocket as gas, not EMPTY at
+        p = 0 inside the liquid. Each pass writes what it writes from scratch, on a box holding the
+        first's (the same particles and more, united with the previous step's)."""
+        with self.timer("p2g"):
+            if not again:
+                self._sort_if_due()
+            self.region.update(self.particles, again)  # one read: the box the grid stages cover
+            self.particles_to_grid(self.region)
+            self._run("after_p2g", dt)  # gas sums
+        with self.timer("grid"):
+            self._grid_velocity_and_cells(dt)
 
     def _end_step(self, dt: float):
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)

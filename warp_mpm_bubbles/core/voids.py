@@ -22,12 +22,15 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    contract by its full deficit and the pressure closes it (grid_kernels.pressure_diagonal_and_rhs
    counts a near-empty cell with no gas and no EMPTY neighbour as enclosed). With compressible gas,
    a void beside the gas stays EMPTY, as before (filled, a merging film was thrown at 3.4 m/s).
-4. leaves a larger region EMPTY this step (closing it by a deficit is violent: the pour's glass
-   once sealed 379 cells of air under a sheet, and the water was thrown at 400 m/s). In a scene with
-   gas, one that touches no gas is air a splash closed over: it is seeded with gas at the ambient
-   pressure, a resolved bubble from the next step on; the mass is booked as taken from the
-   atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays exact). One
-   beside gas is the space the gas just left (a burst's vented cavity), not trapped air.
+4. does not close a larger region by its deficit (that is violent: the pour's glass once sealed
+   379 cells of air under a sheet, and the water was thrown at 400 m/s). In a scene with gas, one
+   that touches no gas is air a splash closed over: it is seeded with gas at the ambient pressure
+   (`seeded`), and Simulation.step splats and classifies again, so the same step's solve sees the
+   pocket as gas cells, a resolved bubble, never as EMPTY at p = 0 inside the liquid (the pour's 90
+   frames: at most 1,045 void cells at one step before, none after). The mass is booked as taken
+   from the atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays
+   exact). One beside gas is the space the gas just left (a burst's vented cavity), not trapped
+   air. Without gas, or beside incompressible gas, a large region stays EMPTY.
 
 Every step, on the device (`clear_holes`), in scenes without gas: a fluid cell with no particle and
 no EMPTY neighbour (a void made liquid above) holds nothing, whatever its neighbours' B-splines
@@ -339,7 +342,8 @@ class VoidSearch:
 
 class VoidPass:
     """Finds the voids after the cells are classified (VoidSearch) and makes them liquid (or, with gas,
-    trapped air); see the module docstring. `last_voids`: void cells found this step (the run's report)."""
+    trapped air); see the module docstring. `last_voids`: void cells found this step (the run's report),
+    trapped air seeded this step included, though its cells are gas by the solve."""
 
     def __init__(self, sim):
         self.sim = sim
@@ -365,18 +369,32 @@ class VoidPass:
         self.last_voids = 0
         self.by_frame: dict[int, int] = {}  # most void cells at one step, per frame that had any (run summary)
         self.pockets = 0  # void regions seeded as trapped air
+        self.seeded = False  # whether this pass seeded trapped air (then Simulation.step splats and classifies again)
+        self._step = -1  # the step of the last pass: a second pass in the same step is that redo
         # Bubble gaps: particle-free regions beside compressible gas, left EMPTY (see _fill_voids) and
         # counted apart from the voids: they are connected to a gas region, not closed off in the liquid.
         self.gap_cells = np.zeros((0, 3), int)
         self.gaps_by_frame: dict[int, int] = {}  # most gap cells at one step, per frame that had any
 
     def apply(self, dt: float):
+        """The pass (module docstring). Called a second time in a step after it seeded trapped air
+        (Simulation._splat_and_classify): then the pocket's cells hold gas particles and are gas
+        cells, and last_voids keeps the larger count of the two passes (the voids found this step)."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
+        again = self._step == sim.stats.steps
+        self._step = sim.stats.steps
+        found = self.last_voids if again else 0
         self.last_voids = 0
+        self.seeded = False
         self.gap_cells = self.gap_cells[:0]
         voids = self.search.find(f.types, sim.region.box)
         if voids is not None:
             self._fill_voids(*voids)
+        self.last_voids = max(self.last_voids, found)
+        if self.last_voids:
+            self.by_frame[sim.frame] = max(self.by_frame.get(sim.frame, 0), self.last_voids)
+        if len(self.gap_cells) and (again or not self.seeded):  # the gaps the solve sees (a seeding pass is redone)
+            self.gaps_by_frame[sim.frame] = max(self.gaps_by_frame.get(sim.frame, 0), len(self.gap_cells))
         if self.clear_holes:
             box, dims = sim.region.cell_lines
             sim.launch(clear_holes, dims, [box, f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
@@ -384,8 +402,8 @@ class VoidPass:
                                               f.gas_volume, f.gas_pv, f.gas_kv])
 
     def _fill_voids(self, types, cells, labels):
-        """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones stay
-        EMPTY this step and, in a scene with gas, are seeded with gas for the next (trapped air)."""
+        """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones, in a
+        scene with gas, are seeded with gas (trapped air; the step then splats again), else stay EMPTY."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
         ids, inverse, sizes = np.unique(labels, return_inverse=True, return_counts=True)
         large = sizes[inverse] >= POCKET_CELLS
@@ -396,12 +414,8 @@ class VoidPass:
         # pressure, the pour's gaps grew to 5171 cells (both sides) or lasted 4x longer (liquid side
         # only): docs/design.md#voids.
         gap = touching & self.compressible
-        if gap.any():
-            self.gap_cells = cells[gap]
-            self.gaps_by_frame[sim.frame] = max(self.gaps_by_frame.get(sim.frame, 0), int(gap.sum()))
+        self.gap_cells = cells[gap]
         self.last_voids = int((~gap).sum())
-        if self.last_voids:
-            self.by_frame[sim.frame] = max(self.by_frame.get(sim.frame, 0), self.last_voids)
         small = ~large & ~gap
         if small.any():
             mask = np.zeros(g.cells, np.int32)
@@ -413,6 +427,7 @@ class VoidPass:
         if pockets.any() and self.gas_material is not None:
             self.pockets += len(np.unique(labels[pockets]))
             self._seed_gas(cells[pockets])
+            self.seeded = True
 
     def gap_mask(self) -> np.ndarray:
         """This step's bubble gaps as a boolean cell array (diagnostics.void_cells leaves them out)."""

@@ -9,7 +9,8 @@ Two scenes, the same N^3 closed box (free-slip) and the same centred block at 8 
 with surface tension 0.072 N/m. The sphere's cells are seeded with air instead of water, so the
 particle counts match. Both are stepped with the same fixed dt (the smaller of their stable steps
 at the start), so the cost per step compares like with like. Rounds alternate the order; medians
-of ms per step and per stage (StageTimer). Writes benchmarks/results/two_phase_cost.{json,md}.
+of ms per step and per stage (StageTimer). Writes benchmarks/results/two_phase_cost.{json,md} (other
+grids: two_phase_cost_g<N>.{json,md}).
 """
 
 from __future__ import annotations
@@ -87,7 +88,8 @@ def main():
               "device": describe_device(wp.get_device(args.device)), "grid": args.grid, "dt": dt, "particles": counts,
               "ms_per_step": med, "ratio": ratio, "stages_ms": stage_med, "rounds": per_step}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "two_phase_cost.json").write_text(json.dumps(result, indent=1))
+    stem = "two_phase_cost" if args.grid == 32 else f"two_phase_cost_g{args.grid}"  # 32: the default's file
+    (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1))
     lines = [f"# Two-phase step against liquid only ({result['device']}, {result['date']})", "",
              f"`python benchmarks/two_phase_cost.py --grid {args.grid} --steps {args.steps} --rounds {args.rounds}`: "
              f"{args.grid}^3 grid, particles {counts}, fixed dt {dt:.3g} s, medians over {args.rounds} rounds.", "",
@@ -97,7 +99,7 @@ def main():
         lines.append(f"| {name} | {med[name]:.1f} | "
                      + " | ".join(f"{stage_med[name].get(k, 0.0):.1f}" for k in stage_med["two_phase"]) + " |")
     lines += ["", f"two-phase / liquid: **{ratio:.2f}x** per step (issue #13's bar: 1.5x)."]
-    (RESULTS / "two_phase_cost.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -139,7 +139,7 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     for dt, expected in ((1.0e-4, speed * 1.0e-4), (1.0e-2, 0.25 * dx)):
         xs = wp.array(x, dtype=wp.vec3, device="cpu")
         wp.launch(retract_gas_films, len(x), device="cpu", inputs=[
-            wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
+            0, wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
             wp.array(level, device="cpu"), speed, geo, dt, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
             wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), xs,
             wp.array(particle_phase, device="cpu"), wp.ones(len(x), dtype=wp.int32, device="cpu")])

@@ -335,13 +335,21 @@ class Simulation:
             arr.zero_()
         args = [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs,
                 f.cell_count, f.nonfinite]
-        lo, hi = r.box[0][0], r.box[1][0] + 1  # the box's nodes along x (faces: one more than cells)
-        cuts = split(lo, hi, self.parallel.threads)
-        cuts[0], cuts[-1] = 0, f.face_pairs[0].shape[0]  # every node belongs to some part
-        self._launch_parts(P2G[self.grid.dim], [(p.count, [*args, a, b]) for a, b in zip(cuts, cuts[1:])])
+        self.launch_splat(P2G[self.grid.dim], args, r)
         for a in range(3):
             self.launch_lines(split_pairs, r.face_lines[a], [f.face_pairs[a], f.mom[a], f.face_mass[a]])
         self.launch_lines(split_pairs, r.cell_lines, [f.cell_pairs, f.liq_mass, f.liq_volume])
+
+    def launch_splat(self, kernel, inputs, region=None):
+        """Launch a particle-to-grid kernel over every particle, its last two arguments the slab
+        [x_lo, x_hi) of grid nodes along x it writes: one slab a thread on the CPU, cut evenly across
+        the region's nodes (faces: one more than cells), the first and last reaching the arrays' ends
+        so every node belongs to some part. Each part visits the particles in index order, so every
+        node sums them in that order whatever the split (core/threads.py)."""
+        r = region or self.region
+        cuts = split(r.box[0][0], r.box[1][0] + 1, self.parallel.threads)
+        cuts[0], cuts[-1] = 0, self.grid.face_shape(0)[0]
+        self._launch_parts(kernel, [(self.particles.count, [*inputs, a, b]) for a, b in zip(cuts, cuts[1:])])
 
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
@@ -438,6 +446,24 @@ class Simulation:
             self.launch(kernel, dims, [*inputs, box])
         else:
             self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in split_lines(box, dims, parts)])
+
+    def launch_particles(self, kernel, inputs):
+        """Launch a per-particle kernel whose first argument is the index of its first particle and
+        which writes only its own particles' values: in ranges at once on the CPU's threads (no
+        particle's result depends on the split), one launch for few particles or one thread."""
+        n = self.particles.count
+        if n == 0:
+            return
+        cuts = split(0, n, self.parallel.threads if n >= threads.SPLIT_PARTICLES else 1)
+        self._launch_parts(kernel, [(b - a, [a, *inputs]) for a, b in zip(cuts, cuts[1:]) if b > a])
+
+    def launch_box(self, kernel, lo, dims, inputs):
+        """Launch a kernel over the box of `dims` cells or faces from `lo` (its last argument: the offset
+        of its thread index) that writes only what it is launched on: in slabs along x at once on the
+        CPU's threads when the box holds SPLIT_CELLS or more."""
+        cuts = split(0, dims[0], self.parallel.threads if math.prod(dims) >= threads.SPLIT_CELLS else 1)
+        self._launch_parts(kernel, [((b - a, *dims[1:]), [*inputs, wp.vec3i(lo[0] + a, lo[1], lo[2])])
+                                    for a, b in zip(cuts, cuts[1:]) if b > a])
 
     def _launch_parts(self, kernel, parts):
         """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the

@@ -25,6 +25,7 @@ MAX_THREADS = 8  # p2g's parts each scan every particle's position: the scan's s
 # A launch over a box this large (cells or faces) runs in slabs, one a thread: smaller ones cost less
 # than the hand-off (about 30 us a launch; a 40^3 box's red-black half-sweep takes about 500 us).
 SPLIT_CELLS = 16384
+SPLIT_PARTICLES = 16384  # the same for a per-particle kernel's launch (core/simulation.py launch_particles)
 # Values that parts update for every particle (their fastest speed, their bounds) lie this many 4-byte
 # words apart, a cache line: side by side, two cores writing them would pass the line back and forth.
 CACHE_LINE_FLOATS = 16

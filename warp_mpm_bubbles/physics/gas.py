@@ -365,10 +365,9 @@ class GasStage(Stage):
         f, p = sim.fields, sim.particles
         for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
             arr.zero_()
-        sim.launch(p2g_gas, p.count,
-                   [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
-                    sim.scene.domain.ambient_pressure, sim.geometry,
-                    f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
+        sim.launch_splat(p2g_gas, [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
+                                   sim.scene.domain.ambient_pressure, sim.geometry,
+                                   f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
         self.cavities.after_p2g(sim)
 
     def on_cells(self, sim, dt: float):
@@ -389,9 +388,8 @@ class GasStage(Stage):
         # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
         # and the core extends that across the interface. (Outside the box both hold the empty state.)
         for a in sim.grid.axes:
-            sim.launch(keep_phase_faces, r.faces(a),
-                       [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a],
-                        r.lo])
+            sim.launch_box(keep_phase_faces, r.lo, r.faces(a),
+                           [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a]])
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
         # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
         # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field
@@ -408,8 +406,7 @@ class GasStage(Stage):
         box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
         sim.launch(gas_volume_rate, box.cells,
                    [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
-        sim.launch(update_gas_J, p.count,
-                   [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
+        sim.launch_particles(update_gas_J, [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
         self.cavities.update_J(sim, dt)
         ambient = sim.scene.domain.ambient_pressure
         if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:

@@ -254,6 +254,7 @@ def film_departures(
 
 @wp.kernel
 def retract_gas_films(
+    start: int,
     types: wp.array3d(dtype=wp.int32),
     phase_cells: wp.array3d(dtype=wp.int32),
     gas_volume: wp.array3d(dtype=float),
@@ -275,9 +276,10 @@ def retract_gas_films(
     kept. The retraction keeps the partition of space between the phases: it never empties a cell.
     If every particle of a cell would leave it, the lowest-indexed one stays, moved only as far as
     its own cell allows, so the space the film held is given up only as liquid comes in (a gas
-    particle leaving a cell alone left a particle-free hole that read as free surface).
+    particle leaving a cell alone left a particle-free hole that read as free surface). Particles
+    start + tid (Simulation.launch_particles: each writes only its own position).
     """
-    p = wp.tid()
+    p = wp.tid() + start
     if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
@@ -378,5 +380,4 @@ class TensionStage(Stage):
             self.leaving.zero_()
             sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
             sim.launch(film_departures, p.count, [*films, p.x, p.phase, p.active, self.leaving, self.first])
-        sim.launch(retract_gas_films, p.count,
-                   [*films, self.count, self.leaving, self.first, p.x, p.phase, p.active])
+        sim.launch_particles(retract_gas_films, [*films, self.count, self.leaving, self.first, p.x, p.phase, p.active])

@@ -1,9 +1,12 @@
 """The CPU's cores: Warp runs a CPU launch on one thread, so the step's large launches are split into
 parts that run at once, one launch per thread (Warp releases Python's lock while a CPU kernel runs).
 The parts are chosen so that the results do not depend on how many there are:
-- g2p: ranges of particles, which are independent (only their largest speed is combined, exactly);
-- p2g: disjoint slabs of grid nodes along x, each part visiting the particles in the same order, so
-  every node sums its contributions in particle order whatever the split;
+- g2p, and the per-particle kernels that write only their own particles (Simulation.launch_particles:
+  the gas's J update, the films' retraction): ranges of particles, which are independent (only their
+  largest speed is combined, exactly);
+- p2g and the gas's splat (Simulation.launch_splat): disjoint slabs of grid nodes along x, each part
+  visiting the particles in the same order, so every node sums its contributions in particle order
+  whatever the split;
 - the grid stages, the V-cycle's smoothing, restriction, prolongation and coarse operators, and the
   CG's vector kernels over a large box (lines of cells, core/lines.py): slabs of lines, for kernels
   that write only the cells they walk. The CG's dot products are summed per plane of the box (a

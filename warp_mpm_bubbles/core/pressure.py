@@ -3,10 +3,9 @@
 The operator is ``A p = -div(1/rho grad p)`` over fluid cells (empty cells are Dirichlet p = 0 gauge,
 solid faces Neumann), plus, from issue #3 on, a per-cell ``kappa/dt^2`` term for the gas. The CG is
 hand-written because ``warp.optim.linear.cg`` spends most of its CPU time in its reduction kernel
-(docs/design.md, #cg-on-warp); each iteration is four launches (plus one V-cycle and one dot product with
-the multigrid preconditioner of multigrid.py) and no read-back: alpha, beta and the convergence test
-are computed on the device, and the host checks a device flag every CHECK_EVERY iterations. All
-launches cover the fluid cells' bounding box (docs/performance.md).
+(docs/design.md, #cg-on-warp); alpha, beta and the convergence test are computed on the device, with
+no read-back per iteration (PressureSolver). All launches cover the fluid cells' bounding box
+(docs/performance.md).
 
 Preconditioners: "none", "jacobi" (diagonal), "multigrid" (one symmetric V-cycle). Jacobi-PCG
 iterations grow linearly with the resolution and with the density ratio; multigrid-PCG's barely
@@ -70,6 +69,24 @@ DONE, ITERS = range(2)
 def add_to_plane(planes: wp.array2d(dtype=wp.float64), plane0: int, first: wp.vec3i, slot: int, value: wp.float64):
     if value != wp.float64(0.0):
         wp.atomic_add(planes, first[0] - plane0, slot, value)
+
+
+@wp.func
+def keep_residual(r: wp.array3d(dtype=float), z: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), mode: int,
+                  c: wp.vec3i, res: float, sums: wp.vec3d):
+    """r = res and z = M^-1 res at cell c; returns sums + (res, res^2, res z), in float64."""
+    zz = preconditioned(res, diag[c[0], c[1], c[2]], mode)
+    r[c[0], c[1], c[2]] = res
+    z[c[0], c[1], c[2]] = zz
+    return sums + wp.vec3d(wp.float64(res), wp.float64(res * res), wp.float64(res * zz))
+
+
+@wp.func
+def add_residual_sums(planes: wp.array2d(dtype=wp.float64), plane0: int, first: wp.vec3i, sums: wp.vec3d):
+    """A line's (sum r, r . r, r . z) into its plane's R_SUM, RR and RZ."""
+    add_to_plane(planes, plane0, first, R_SUM, sums[0])
+    add_to_plane(planes, plane0, first, RR, sums[1])
+    add_to_plane(planes, plane0, first, RZ, sums[2])
 
 
 @wp.kernel
@@ -242,22 +259,11 @@ def start_iteration(
         return
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
-    r_sum = wp.float64(0.0)
-    rr = wp.float64(0.0)
-    rz = wp.float64(0.0)
+    sums = wp.vec3d()
     for s in range(first[walk.axis], line_end(walk, first)):
         c = on_line(first, walk.axis, s)
-        i, j, k = c[0], c[1], c[2]
-        res = b[i, j, k] - Ax[i, j, k]
-        z = preconditioned(res, diag[i, j, k], mode)
-        r[i, j, k] = res
-        d[i, j, k] = z
-        r_sum += wp.float64(res)
-        rr += wp.float64(res * res)
-        rz += wp.float64(res * z)
-    add_to_plane(planes, plane0, first, R_SUM, r_sum)
-    add_to_plane(planes, plane0, first, RR, rr)
-    add_to_plane(planes, plane0, first, RZ, rz)
+        sums = keep_residual(r, d, diag, mode, c, b[c[0], c[1], c[2]] - Ax[c[0], c[1], c[2]], sums)
+    add_residual_sums(planes, plane0, first, sums)
 
 
 @wp.kernel
@@ -287,23 +293,13 @@ def step_solution(
     alpha = float(dots[row - 1, rz_slot] / dAd)
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
-    r_sum = wp.float64(0.0)
-    rr = wp.float64(0.0)
-    rz = wp.float64(0.0)
+    sums = wp.vec3d()
     for s in range(first[walk.axis], line_end(walk, first)):
         c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
-        res = r[i, j, k] - alpha * Ad[i, j, k]
-        zz = preconditioned(res, diag[i, j, k], mode)
-        r[i, j, k] = res
-        z[i, j, k] = zz
-        r_sum += wp.float64(res)
-        rr += wp.float64(res * res)
-        rz += wp.float64(res * zz)
-    add_to_plane(planes, plane0, first, R_SUM, r_sum)
-    add_to_plane(planes, plane0, first, RR, rr)
-    add_to_plane(planes, plane0, first, RZ, rz)
+        sums = keep_residual(r, z, diag, mode, c, r[i, j, k] - alpha * Ad[i, j, k], sums)
+    add_residual_sums(planes, plane0, first, sums)
 
 
 @wp.kernel
@@ -416,19 +412,14 @@ class PressureSolver:
     each fluid cell's face neighbours are in it), at every multigrid level. `active_box=False`
     launches over the whole grid instead (same arithmetic, for tests and benchmarks).
 
-    No host read per iteration: alpha and beta are computed by the kernels from float64 dot products
-    that they accumulate into one device row per iteration, plane by plane of the box then the planes
-    in order (sum_planes), so on the CPU the sums do not depend on the threads. A one-thread kernel
-    raises a device flag at convergence, after which every kernel returns at once; the host reads the
-    flag (with the iteration count and residual) first after as many iterations as the last solve
-    took (consecutive warm-started steps take about as many: usually that one read is all), then every
-    `check_every` iterations; up to check_every - 1 iterations past convergence are launched as no-ops.
-    That is a fixed launch sequence per chunk, which a CUDA graph can capture (wp.capture_while on the
-    flag would make the loop itself device-side).
-
-    On the CPU the cell kernels run in slabs of planes on the threads of `parallel` when the box holds
-    SPLIT_CELLS or more cells; every launch of a solve is recorded once and replayed (Warp packs a
-    launch's arguments in Python), the iteration's row set on the recorded launch.
+    No host read per iteration: alpha and beta come from float64 dot products that the kernels sum
+    into one device row per iteration, per plane of the box and then over the planes in order
+    (sum_planes), so on the CPU the sums do not depend on the threads. A one-thread kernel raises a
+    device flag at convergence, after which every kernel returns at once; the host reads the flag
+    first after as many iterations as the last solve took (usually that one read is all), then every
+    `check_every` iterations (up to check_every - 1 no-op iterations). A chunk is a fixed launch
+    sequence, which a CUDA graph can capture. On the CPU the cell kernels run in slabs of planes on
+    the threads of `parallel`; a solve's launches are recorded once and replayed, the row set on each.
     """
 
     def __init__(self, shape, dim: int, dx: float, device, *, active_box: bool = True,
@@ -521,48 +512,57 @@ class PressureSolver:
         region: None, or a box (lo, hi) that holds every fluid cell and outside which x is already 0
         (the simulation's grid box): the one pass that masks x and finds the fluid box covers only it."""
         mode = PRECONDITIONERS.index(preconditioner)
-        types, diag, inv_rho = system.types, system.diag, system.inv_rho
         self.host_reads = 0
-        self._find_box(types, x, region)
+        self._find_box(system.types, x, region)
         if min(h - l for l, h in zip(*self.box)) == 0:  # noqa: E741
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
             self.rows = wp.zeros((max_iter + 1, ROW), dtype=wp.float64, device=self.device)
-        done, rows, sums, planes, plane0 = self.done, self.rows, self.scalars, self.planes, self.box[0][0]
-        for a in (rows, sums, done, self.info):
+        for a in (self.rows, self.scalars, self.done, self.info):
             a.zero_()
         project = n_fluid if singular else 0
         if project:  # closed tank: only b's component orthogonal to constants is reachable
-            self._sum_fluid(types, b, B_SUM, squares=False)
-            self._center(types, b, sums, 0, B_SUM, project)
-        self._sum_fluid(types, b, B_SUM_SHIFTED, squares=True)
-        self._run(self._record_cells(zero_if_trivial, [sums, x]))
+            self._sum_fluid(system.types, b, B_SUM, squares=False)
+            self._center(system.types, b, self.scalars, 0, B_SUM, project)
+        self._sum_fluid(system.types, b, B_SUM_SHIFTED, squares=True)
+        self._run(self._record_cells(zero_if_trivial, [self.scalars, x]))
         if mode == MULTIGRID:
             if self.multigrid is None:
                 self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device,
                                                          parallel=self.parallel)
-            self.multigrid.build(system, self.box, done)
+            self.multigrid.build(system, self.box, self.done)
+        it, rel2 = self._iterate(system, b, x, mode, project, tol, max_iter)
+        if project:
+            self.done.zero_()
+            self._sum_fluid(system.types, x, X_SUM, squares=False)
+            self._center(system.types, x, self.scalars, 0, X_SUM, project)
+        rel = math.sqrt(rel2)
+        return SolveInfo(it, rel, rel <= tol)
+
+    def _iterate(self, system, b, x, mode: int, project: int, tol: float, max_iter: int):
+        """The PCG iterations from the warm start x; returns (iterations, relative residual squared)."""
+        types, diag, done, rows, planes, plane0 = system.types, system.diag, self.done, self.rows, self.planes, self.box[0][0]
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
-        tol2 = wp.float64(tol * tol)
-        operator = [done, types, diag, *inv_rho, self.inv_dx2, self.dim, self.inside]
+        operator = [done, types, diag, *system.inv_rho, self.inv_dx2, self.dim, self.inside]
+        # One iteration's launches, recorded once for this solve (the row is set on each replay).
         apply_d = self._record_cells(apply_operator, [*operator, self.d, self.Ad, planes, plane0])
         reduce_dAd = self._reduce(DAD, 1, rows, DAD)
         step = self._record_cells(step_solution, [done, rows, 0, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
                                                   self.z, planes, plane0])
         reduce_step = self._reduce(R_SUM, 3, rows, R_SUM)
-        check = self._record(check_convergence, [rows, 0, sums, tol2, done, self.info])
+        check = self._record(check_convergence, [rows, 0, self.scalars, wp.float64(tol * tol), done, self.info])
         dot_z = self._record_cells(fluid_dot, [done, types, self.r, self.z, planes, plane0])
         reduce_dot = self._reduce(RZ_MG, 2, rows, RZ_MG)
         update = self._record_cells(update_direction, [done, rows, 0, rz_slot, self.z, self.d])
 
-        def precondition(r, z, row, dot):
+        def precondition(z, row, dot):
             """z = M^-1 r by the V-cycle; rows[row] gets r . z and the sum of z. A singular system's r
             and z are first projected onto the range (mean zero): round-off leaves r a small constant
             part, which the V-cycle would amplify (the constant is its near-null direction) and CG then
             loses orthogonality."""
             if project:
-                self._center(types, r, rows, row, R_SUM, project)
-            self.multigrid.apply(r, z)
+                self._center(types, self.r, rows, row, R_SUM, project)
+            self.multigrid.apply(self.r, z)
             self._run(dot)
             self._run(reduce_dot, row)
             if project:
@@ -571,12 +571,11 @@ class PressureSolver:
         # Row 0: r = b - A x, d = M^-1 r. A x's p . A p lands in row 0's DAD slot, which nothing reads.
         self._run(self._record_cells(apply_operator, [*operator, x, self.Ad, planes, plane0]))
         self._run(reduce_dAd, 0)
-        self._run(self._record_cells(start_iteration, [done, b, self.Ad, diag, mode, self.r, self.d, planes,
-                                                       plane0]))
+        self._run(self._record_cells(start_iteration, [done, b, self.Ad, diag, mode, self.r, self.d, planes, plane0]))
         self._run(reduce_step, 0)
         self._run(check, 0)
         if mode == MULTIGRID:
-            precondition(self.r, self.d, 0, self._record_cells(fluid_dot, [done, types, self.r, self.d, planes, plane0]))
+            precondition(self.d, 0, self._record_cells(fluid_dot, [done, types, self.r, self.d, planes, plane0]))
         # Chunks of iterations between reads: the first as long as the last solve took (warm-started
         # steps take about as many), then check_every. Iterations past convergence are no-ops.
         row, stop, chunk = 0, False, self.predicted
@@ -589,16 +588,11 @@ class PressureSolver:
                 self._run(reduce_step, row)
                 self._run(check, row)
                 if mode == MULTIGRID:
-                    precondition(self.r, self.z, row, dot_z)
+                    precondition(self.z, row, dot_z)
                 self._run(update, row)
             stop, it, rel2 = self._check()
             chunk = self.check_every
         if row == 0:  # max_iter == 0
             stop, it, rel2 = self._check()
         self.predicted = max(it, 1)
-        if project:
-            done.zero_()
-            self._sum_fluid(types, x, X_SUM, squares=False)
-            self._center(types, x, sums, 0, X_SUM, project)
-        rel = math.sqrt(rel2)
-        return SolveInfo(it, rel, rel <= tol)
+        return it, rel2

@@ -45,7 +45,7 @@ from warp_mpm_bubbles import (
     Sphere,
 )
 from warp_mpm_bubbles import diagnostics as D
-from warp_mpm_bubbles.core.grid import PHASE_GAS, PHASE_SUBGRID
+from warp_mpm_bubbles.core.grid import PHASE_GAS
 from warp_mpm_bubbles.scene.effects import SubgridBubbles
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.core.timing import describe_device

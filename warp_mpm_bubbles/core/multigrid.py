@@ -164,15 +164,6 @@ def line_inside(L: Level, first: wp.vec3i, axis: int):
 
 
 @wp.func
-def neighbours_inside(L: Level, c: wp.vec3i):
-    """Every face neighbour of cell c lies in the box."""
-    for a in range(L.dim):
-        if c[a] <= L.box.lo[a] or c[a] + 1 >= L.box.hi[a]:
-            return False
-    return True
-
-
-@wp.func
 def cell_inside(L: Level, inside_line: bool, axis: int, s: int):
     """Cell s of a line with line_inside has both neighbours along the line in the box."""
     return inside_line and s > L.box.lo[axis] and s + 1 < L.box.hi[axis]

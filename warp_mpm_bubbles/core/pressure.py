@@ -22,9 +22,9 @@ import warp as wp
 
 from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
-from .lines import Lines, line_end, line_first, make_lines, on_line, split_lines
+from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
-from .threads import SPLIT_CELLS, Parallel
+from .threads import Parallel, line_slabs
 
 wp.set_module_options({"enable_backward": False})
 
@@ -450,9 +450,8 @@ class PressureSolver:
     def _record_cells(self, kernel, inputs):
         """Recorded launches of a cell kernel over the box, its first argument the walk: slabs of planes,
         one a thread, when the box is large enough to split (core/threads.py); a stage."""
-        parts = self.parallel.threads if math.prod(self.dims) * self.lines.length >= SPLIT_CELLS else 1
         return [wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
-                for walk, d in split_lines(self.lines, self.dims, parts)]
+                for walk, d in line_slabs(self.lines, self.dims, self.parallel.threads)]
 
     def _run(self, stage, row=None):
         """Replay a stage's launches at once (setting `row` first, for the kernels that take one)."""

@@ -39,8 +39,7 @@ from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
 from . import threads
-from .lines import split_lines
-from .threads import Parallel, cpu_threads, split
+from .threads import Parallel, cpu_threads, line_slabs, split
 from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, fastest_of_parts, split_pairs
 from .voids import VoidPass
 
@@ -371,15 +370,13 @@ class Simulation:
     def _assemble_pressure_system(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        box, dims = r.cell_lines
         inputs = [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
                   self.two_phase, self.interface, g.dx, dt, g.dim,
                   volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
                   f.diag, f.extra_diag, f.rhs, f.target_div, f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
-        parts = self.parallel.threads if math.prod(dims) * box.length >= threads.SPLIT_CELLS else 1
         self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
-                                                          for q, (slab, d) in enumerate(split_lines(box, dims, parts))])
+                                                          for q, (slab, d) in enumerate(line_slabs(*r.cell_lines, self.parallel.threads))])
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
@@ -440,12 +437,11 @@ class Simulation:
         """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
         writes only what it walks: lines = (Lines, dims), the Lines struct its last argument. A box of
         SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
-        box, dims = lines
-        parts = self.parallel.threads if math.prod(dims) * box.length >= threads.SPLIT_CELLS else 1
-        if parts == 1:
-            self.launch(kernel, dims, [*inputs, box])
+        slabs = line_slabs(*lines, self.parallel.threads)
+        if len(slabs) == 1:
+            self.launch(kernel, slabs[0][1], [*inputs, slabs[0][0]])
         else:
-            self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in split_lines(box, dims, parts)])
+            self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in slabs])
 
     def launch_particles(self, kernel, inputs):
         """Launch a per-particle kernel whose first argument is the index of its first particle and

@@ -21,8 +21,11 @@ use, at most MAX_THREADS. On a GPU there is one launch.
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
+
+from .lines import split_lines
 
 MAX_THREADS = 8  # p2g's parts each scan every particle's position: the scan's share grows with the count
 # A launch over a box this large (cells or faces) runs in slabs, one a thread: smaller ones cost less
@@ -67,6 +70,14 @@ class Parallel:
         calls[0]()
         for done in pending:
             done.result()
+
+
+def line_slabs(box, dims, threads: int) -> list:
+    """A box of lines (core/lines.py: its Lines struct and launch dims) as the slabs of one launch on
+    the CPU's threads: one a thread when it holds SPLIT_CELLS or more cells or faces, else itself."""
+    if threads > 1 and math.prod(dims) * box.length >= SPLIT_CELLS:
+        return split_lines(box, dims, threads)
+    return [(box, dims)]
 
 
 def split(lo: int, hi: int, parts: int) -> list[int]:

@@ -1,6 +1,6 @@
 """The CPU's threads (core/threads.py): p2g in slabs of nodes, g2p in ranges of particles, the V-cycle's
-large launches in slabs of lines. Results must not depend on the thread count: the same bits with 1,
-2 and 3 threads, in 2D and 3D, liquid and gas."""
+and the CG's large launches in slabs of lines (the CG's dot products summed per plane). Results must
+not depend on the thread count: the same bits with 1, 2 and 3 threads, in 2D and 3D, liquid and gas."""
 
 import numpy as np
 import pytest
@@ -37,6 +37,7 @@ def state_after(scene, n_threads, steps, monkeypatch):
 @pytest.mark.parametrize("case", ["dam_break_2d", "splash_3d"])
 def test_results_do_not_depend_on_the_thread_count(case, tmp_path, monkeypatch):
     monkeypatch.setattr(threads, "SPLIT_CELLS", 0)  # split every box launch, even these small ones
+    monkeypatch.setattr(threads, "SPLIT_PARTICLES", 0)  # and every per-particle launch that may be split
     scene = dam_break_2d(cells_per_a=8, out=tmp_path / "d.usdc") if case == "dam_break_2d" else splash_3d(tmp_path)
     one = state_after(scene, 1, 6, monkeypatch)
     for n in (2, 3):

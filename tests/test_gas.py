@@ -8,6 +8,8 @@ import warp as wp
 
 from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles.core.grid import INTERFACE_SHARP
+from warp_mpm_bubbles.core.grid_kernels import cell_compressibility
 from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
@@ -376,3 +378,40 @@ def test_3d_bubble_volume_follows_pv_constant_and_keeps_its_gas(breathing_3d):
     budget = breathing_3d["sim"].gas_budget()
     assert budget["total"] == pytest.approx(b0["total"], rel=1e-12)
     assert budget["vented"] == 0.0
+
+
+@wp.kernel(enable_backward=False)
+def _cell_kappa(kv: wp.array(dtype=float), vg: wp.array(dtype=float), cell_volume: float,
+                out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = cell_compressibility(kv[i], vg[i], INTERFACE_SHARP, cell_volume)
+
+
+def test_a_gas_cells_compressibility_matches_the_volume_change_its_gas_takes():
+    """The solve lets a gas cell change volume as div dt = -kappa_cell dp; update_gas_J hands the gas
+    the whole cell's change (gas_volume_rate: r = div dx^3 / V_g), so its pressure moves by
+    dp = -r dt / kappa_gas. The two agree only with kappa_cell = kappa_gas V_g / dx^3, in a cell the
+    particles under- or over-fill too: with V_g / (V_g + V_l) a lone sliver of gas among empty cells
+    had its J moved 1/alpha times more than the solve assumed and ran away (the pour: 241 m/s)."""
+    from warp_mpm_bubbles.core.grid import FLUID
+    from warp_mpm_bubbles.core.transfer_kernels import gas_volume_rate
+
+    dx, kappa_gas, div = 0.01, 1.0 / 101325.0, 3.0  # 1/Pa; 1/s
+    fractions = np.array([0.05, 0.17, 0.5, 1.0, 1.3])  # V_g / dx^3: slivers, a full cell, an over-full one
+    n = len(fractions)
+    types = wp.array(np.full((n, 1, 1), FLUID, np.int32), device="cpu")
+    u = np.zeros((n + 1, 1, 1), np.float32)
+    u[1:, 0, 0] = div * dx * np.arange(1, n + 1)  # each cell's div: (u[i+1] - u[i]) / dx = div
+    zeros_v, zeros_w = wp.zeros((n, 2, 1), dtype=float, device="cpu"), wp.zeros((n, 1, 2), dtype=float, device="cpu")
+    vg = (fractions * dx**3).astype(np.float32)
+    rate = wp.zeros((n, 1, 1), dtype=float, device="cpu")
+    wp.launch(gas_volume_rate, (n, 1, 1), device="cpu",
+              inputs=[types, wp.array(u, device="cpu"), zeros_v, zeros_w, wp.array(vg.reshape(n, 1, 1), device="cpu"),
+                      wp.zeros((n, 1, 1), dtype=float, device="cpu"), dx, 2, rate, wp.vec3i(0, 0, 0)])
+    kappa_cell = wp.zeros(n, dtype=float, device="cpu")
+    wp.launch(_cell_kappa, n, device="cpu", inputs=[wp.array((kappa_gas * vg).astype(np.float32), device="cpu"),
+                                                    wp.array(vg, device="cpu"), dx**3, kappa_cell])
+    r = rate.numpy().ravel()
+    assert r == pytest.approx(div / fractions, rel=1e-5)
+    # the pressure change the solve expects equals the one the gas's J update makes
+    assert div / kappa_cell.numpy() == pytest.approx(r / kappa_gas, rel=1e-5, abs=0.0)

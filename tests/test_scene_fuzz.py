@@ -3,7 +3,7 @@ never a traceback from deeper in the code."""
 
 import copy
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from test_scene import good_dict
@@ -46,6 +46,10 @@ def mutate(d, path, action, value):
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.tuples(st.sampled_from(ALL_PATHS), st.sampled_from(["set", "delete", "rename"]), JUNK),
                 min_size=1, max_size=3))
+# found by this test (2026-12-05): a domain so large that its cell count overflowed (an infinite one
+# raised OverflowError in the whole-number check, a finite one in the total's message)
+@example(mutations=[(("domain", "size", 0), "set", 3.595386269724632e+306)])
+@example(mutations=[(("domain", "size", 0), "set", 3.595386269724632e+305)])
 def test_malformed_scenes_get_a_named_error(tmp_path_factory, mutations):
     d = copy.deepcopy(good_dict())
     d["output"]["path"] = str(tmp_path_factory.getbasetemp() / "fuzz.usdc")

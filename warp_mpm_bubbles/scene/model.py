@@ -102,6 +102,10 @@ class Domain:
         dim = self.dim
         for a, s in enumerate(self.size):
             n = s / h
+            if n > MAX_CELLS:  # (a count this large, or infinite, has no whole number to check)
+                c.fail(f"{t}.size", self.size,
+                       f"{AXES[a]} = {_g(s)} is {n:.3g} cells of cell_size {_g(h)}; at most {MAX_CELLS:.3g} cells "
+                       f"fit in memory and in Warp's 32-bit indices: shrink [domain].size or enlarge [domain].cell_size")
             if abs(n - round(n)) > 1e-6 * n:
                 fits = " or ".join(f"{m * h:.10g} ({m} cells)" for m in (math.floor(n), math.ceil(n)) if m >= 1)
                 c.fail(f"{t}.size", self.size,

@@ -128,6 +128,19 @@ def stencil_mass(mass: wp.array3d(dtype=float), X: wp.vec3, dim: int):
 
 
 @wp.func
+def face_fluid_mass(mass_u: wp.array3d(dtype=float), mass_v: wp.array3d(dtype=float),
+                    mass_w: wp.array3d(dtype=float), xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
+    """The fluid mass a bubble at xp drags (this step's face masses): the smallest stencil_mass over
+    the face grids, the most the drag's dt k may be (advance_subgrid)."""
+    inv_dx = 1.0 / dx
+    m = wp.min(stencil_mass(mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
+               stencil_mass(mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim))
+    if dim == 3:
+        m = wp.min(m, stencil_mass(mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim))
+    return m
+
+
+@wp.func
 def add_face_impulse(
     vel: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), X: wp.vec3, dim: int, impulse: float
 ):
@@ -181,6 +194,23 @@ def deposit_drag_reaction(
         add_face_impulse(vel_w, mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, J[2])
 
 
+@wp.func
+def joins_resolved_gas(types: wp.array3d(dtype=wp.int32), phase_cells: wp.array3d(dtype=wp.int32),
+                       ceiling: wp.array3d(dtype=wp.int32), c: wp.vec3i, up_axis: int, up_sign: int):
+    """A bubble in cell c leaves the sub-grid for the resolved gas: c is a gas cell, or an empty cell
+    above the liquid's ceiling (without gravity any empty cell is air; an empty hole inside the
+    water is still water around the bubble)."""
+    t = types[c[0], c[1], c[2]]
+    if t == FLUID:
+        return phase_cells[c[0], c[1], c[2]] == PHASE_GAS
+    if t != EMPTY:
+        return False
+    if up_axis < 0:
+        return True
+    col = column_of(c, up_axis)
+    return height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
+
+
 @wp.kernel
 def advance_subgrid(
     vel_u: wp.array3d(dtype=float),
@@ -211,16 +241,9 @@ def advance_subgrid(
     max_speed: wp.array(dtype=float),
 ):
     """Buoyancy and implicit drag for every sub-grid bubble in the liquid; the others join the
-    resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those).
-
-    The drag's impulse per unit relative speed, dt k, is at most M, the fluid mass the bubble's
-    stencil holds (the smallest over the face grids, this step's face masses): the bubble's side is
-    implicit, but the fluid takes the reaction explicitly next step, and an explicit drag moves a
-    mass M by dt k / M of the relative velocity: beyond 1 it drags the fluid past the bubble, an
-    overshoot that grows without bound as M -> 0. In the liquid M ~ rho_l dx^3 >> dt k (1e-5 against
-    1e-8 kg for the pour's bubbles), so the cap never acts there; it acts where the stencil holds
-    next to no fluid (a bubble in a resolved bubble's particle-free gap), where the bubble then keeps
-    its momentum instead of dumping it onto a few picograms of gas."""
+    resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those). The
+    drag's dt k is capped at the fluid mass the bubble's stencil holds (face_fluid_mass; the module
+    docstring says why: the fluid takes the reaction explicitly)."""
     up_axis = geo.up_axis
     up_sign = geo.up_sign
     origin = geo.origin
@@ -234,13 +257,7 @@ def advance_subgrid(
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     c = cell_of(xp, origin, dx)
     t = types[c[0], c[1], c[2]]
-    leaves = t == FLUID and phase_cells[c[0], c[1], c[2]] == PHASE_GAS
-    if t == EMPTY:
-        leaves = True  # no gravity: any empty cell is air
-        if up_axis >= 0:  # an empty hole inside the water is still water around the bubble
-            col = column_of(c, up_axis)
-            leaves = height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
-    if leaves:
+    if joins_resolved_gas(types, phase_cells, ceiling, c, up_axis, up_sign):
         phase[p] = PHASE_GAS
         impulse[p] = wp.vec3(0.0)
         return
@@ -254,11 +271,7 @@ def advance_subgrid(
     rho_g = mass[p] / vol
     m_eff = (rho_g + ADDED_MASS * rho_l) * vol
     u_l = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim)
-    inv_dx = 1.0 / dx
-    fluid_mass = wp.min(stencil_mass(mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
-                        stencil_mass(mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim))
-    if dim == 3:
-        fluid_mass = wp.min(fluid_mass, stencil_mass(mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim))
+    fluid_mass = face_fluid_mass(mass_u, mass_v, mass_w, xp, origin, dx, dim)
     b = m_eff * (v[p] - u_l) - dt * (rho_l - rho_g) * vol * gravity
     b_len = wp.length(b)
     w = wp.vec3(0.0)

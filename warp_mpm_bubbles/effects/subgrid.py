@@ -15,11 +15,8 @@ side (the left side grows monotonically with |w|), found by bisection: stable at
 it is exactly the terminal balance F_b = k(U) U. Two-way: the momentum dt k w that the drag took
 from the bubble goes to the liquid's face velocities in the next step's grid stage, right after
 u* = p/m + dt g, spread over the faces in proportion to the mass each holds (momentum-exact, lagged
-by one step). The fluid's side is thus explicit: it moves by dt k w / M, M the fluid mass the
-bubble's stencil holds, so dt k is capped at M (no more than drags the fluid to the bubble's own
-velocity). In the liquid dt k << M and the cap never acts; where the grid holds next to no fluid
-(a resolved bubble's particle-free gap) the bubble keeps its momentum instead of throwing a few
-picograms of gas at 3e8 m/s (the pour's frame 38, before the cap).
+by one step). The fluid's side is thus explicit, so dt k is capped at the fluid mass the bubble's
+stencil holds (the drag law, its solve and the cap: effects/subgrid_drag.py).
 
 A bubble whose cell is gas (or open air above the water) joins the resolved gas in place; the vent
 or foam stage then takes it if it is in open air.
@@ -54,54 +51,17 @@ from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, co
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
+from .subgrid_drag import (ADDED_MASS, PI, add_face_impulse, drag_impulse_per_speed, face_fluid_mass,
+                           implicit_relative_speed)
 from ..core.transfer_kernels import (
     GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
-    make_stencil, wall_stopped,
+    wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})
 
 WATER_VISCOSITY = 1.0e-3  # Pa s, when the liquid sets none (its inviscid grid still drags bubbles)
-ADDED_MASS = wp.constant(0.5)  # added-mass coefficient of a sphere
-RE_NEWTON = wp.constant(1000.0)  # Schiller-Naumann's upper end, where C_D levels off at 0.44
-CD_NEWTON = wp.constant(0.44)
-BISECTION_STEPS = wp.constant(40)  # float32 interval [0, b/m] halves to its last bit in ~25
-PI = wp.constant(math.pi)
 PUSH_REACH = 4.0  # gather: liquid within this many bubble radii makes room (displacement ~(R/r)^d)
-
-
-@wp.func
-def drag_per_speed(s: float, r: float, rho_l: float, mu: float):
-    """k(s) with |drag| = k(s) s at relative speed s; C_D s stays finite as s -> 0 (Stokes)."""
-    re = rho_l * s * 2.0 * r / mu
-    cd_s = CD_NEWTON * s
-    if re < RE_NEWTON:
-        cd_s = 24.0 * mu / (rho_l * 2.0 * r) * (1.0 + 0.15 * wp.pow(re, 0.687))
-    return 0.5 * rho_l * cd_s * PI * r * r
-
-
-@wp.func
-def drag_impulse_per_speed(s: float, dt: float, r: float, rho_l: float, mu: float, fluid_mass: float):
-    """The step's drag impulse per unit relative speed, dt k(s), at most the fluid mass the bubble's
-    stencil holds: the fluid takes the reaction explicitly (next step, deposit_drag_reaction), and an
-    explicit drag on a mass M moves it by dt k / M of the relative velocity, so dt k <= M is what keeps
-    the fluid from being dragged past the bubble (see advance_subgrid)."""
-    return wp.min(dt * drag_per_speed(s, r, rho_l, mu), fluid_mass)
-
-
-@wp.func
-def implicit_relative_speed(b: float, m: float, dt: float, r: float, rho_l: float, mu: float, fluid_mass: float):
-    """s >= 0 with s (m + c(s)) = b, c = drag_impulse_per_speed; s (m + c(s)) increases with s (c is
-    non-decreasing), so bisect on [0, b/m]."""
-    lo = float(0.0)
-    hi = b / m
-    for _ in range(BISECTION_STEPS):
-        mid = 0.5 * (lo + hi)
-        if mid * (m + drag_impulse_per_speed(mid, dt, r, rho_l, mu, fluid_mass)) > b:
-            hi = mid
-        else:
-            lo = mid
-    return 0.5 * (lo + hi)
 
 
 @wp.func
@@ -113,52 +73,6 @@ def volume_ratio(law: int, gamma: float, p_gauge: float, p_atm: float):
     if law == GAS_ADIABATIC:
         return wp.pow(p_atm / p_abs, 1.0 / gamma)
     return 1.0
-
-
-@wp.func
-def stencil_mass(mass: wp.array3d(dtype=float), X: wp.vec3, dim: int):
-    """M = sum_i w_i m_i: the fluid mass the B-spline at X sees on one face grid."""
-    s = make_stencil(X, dim)
-    total = float(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(s.nk):
-                total += s.wx[i] * s.wy[j] * s.wz[k] * mass[s.base[0] + i, s.base[1] + j, s.base[2] + k]
-    return total
-
-
-@wp.func
-def face_fluid_mass(mass_u: wp.array3d(dtype=float), mass_v: wp.array3d(dtype=float),
-                    mass_w: wp.array3d(dtype=float), xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
-    """The fluid mass a bubble at xp drags (this step's face masses): the smallest stencil_mass over
-    the face grids, the most the drag's dt k may be (advance_subgrid)."""
-    inv_dx = 1.0 / dx
-    m = wp.min(stencil_mass(mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
-               stencil_mass(mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim))
-    if dim == 3:
-        m = wp.min(m, stencil_mass(mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim))
-    return m
-
-
-@wp.func
-def add_face_impulse(
-    vel: wp.array3d(dtype=float), mass: wp.array3d(dtype=float), X: wp.vec3, dim: int, impulse: float
-):
-    """Spread one impulse component J over the faces the B-spline touches, in proportion to the mass
-    each holds there: node i gains w_i J / M, M = sum_j w_j m_j (stencil_mass). The nodes' momenta
-    sum to J exactly, and none changes by more than J / M, the whole stencil's share. (It was
-    w_i J / m_i: exact too, but a face holding only a gas particle's B-spline tail, 5e-14 kg in the
-    pour's bubble gap, took 3e8 m/s from a 3.5e-5 kg m/s impulse.)"""
-    total = stencil_mass(mass, X, dim)
-    if total <= 0.0:
-        return
-    s = make_stencil(X, dim)
-    for i in range(3):
-        for j in range(3):
-            for k in range(s.nk):
-                n = s.base + wp.vec3i(i, j, k)
-                if mass[n[0], n[1], n[2]] > 0.0:
-                    wp.atomic_add(vel, n[0], n[1], n[2], s.wx[i] * s.wy[j] * s.wz[k] * impulse / total)
 
 
 @wp.kernel

@@ -9,7 +9,7 @@ import warp as wp
 from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.core.grid import INTERFACE_SHARP
-from warp_mpm_bubbles.core.grid_kernels import cell_compressibility
+from warp_mpm_bubbles.core.gas_law import cell_compressibility
 from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True

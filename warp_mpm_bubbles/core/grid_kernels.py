@@ -12,6 +12,7 @@ import warp as wp
 from .grid import (
     EMPTY, FLUID, INTERFACE_BASELINE, PHASE_GAS, PHASE_LIQUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN,
 )
+from .gas_law import cell_compressibility
 from .cells import HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trusted, fill_fraction, is_solid, unit
 from .lines import Lines, line_end, line_first, on_line
 from .volume_correction import cell_excess, is_hole
@@ -333,22 +334,6 @@ def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=w
                 if gas_kv[n[0], n[1], n[2]] > 0.0:
                     enclosed = 0
     return wp.vec2i(pinned, enclosed)
-
-
-@wp.func
-def cell_compressibility(kv: float, vg: float, interface: int, cell_volume: float):
-    """kappa of a cell holding gas (kv: the gas's volume-weighted kappa, vg: its volume). Baseline: a
-    gas cell is all gas. Sharp: the mixture's, kappa = alpha kappa_gas (Wood 1930; the liquid's is
-    ~0), so the liquid in a cell the interface crosses is not stretched as if it were gas, with
-    alpha = vg / cell_volume: the gas then takes the whole cell's volume change the solve allows
-    (update_gas_J gives it div dx^3 dt, gas_volume_rate), as the solve assumed. alpha = vg / (vg + vl)
-    agreed only in cells exactly filled; a lone gas particle among empty cells (0.05-0.17 of a cell
-    of gas, no liquid) had its J moved 1/alpha times more than the solve expected, its pressure
-    alternated every step and it reached 241 m/s in the pour (docs/design.md, #gas-system)."""
-    kappa = kv / vg
-    if interface != INTERFACE_BASELINE:
-        kappa = kappa * vg / cell_volume
-    return kappa
 
 
 @wp.kernel

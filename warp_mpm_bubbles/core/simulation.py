@@ -40,7 +40,8 @@ from .state import GridFields, ParticleState
 from .timing import StageTimer
 from . import threads
 from .threads import Parallel, cpu_threads, line_slabs, split
-from .transfer_kernels import G2P, GAS_ADIABATIC, GAS_ISOTHERMAL, P2G, fastest_of_parts, split_pairs
+from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
+from .transfer_kernels import G2P, P2G, fastest_of_parts, split_pairs
 from .voids import VoidPass
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell

@@ -9,14 +9,11 @@ every grid in one pass over the nodes; the per-component functions serve the eff
 import warp as wp
 
 from .geometry import GridGeometry
+from .gas_law import gas_compressibility, gas_pressure
 from .grid import FLUID, PHASE_GAS, PHASE_LIQUID
 from .lines import Lines, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})
-
-# Gas laws per particle (0: liquid, or a gas with a fixed density: no pressure from compression).
-GAS_ISOTHERMAL = 1
-GAS_ADIABATIC = 2
 
 # Stagger offsets in cell units: where sample (0,0,0) of each grid sits relative to the grid origin.
 U_OFFSET = wp.constant(wp.vec3(0.0, 0.5, 0.5))
@@ -74,27 +71,6 @@ def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
 @wp.func
 def grid_coord(x: wp.vec3, origin: wp.vec3, inv_dx: float, offset: wp.vec3):
     return (x - origin) * inv_dx - offset
-
-
-@wp.func
-def gas_pressure(law: int, J: float, gamma: float, p_atm: float):
-    """Gauge pressure of gas compressed to volume ratio J from rest at p_atm."""
-    if law == GAS_ISOTHERMAL:
-        return p_atm * (1.0 / J - 1.0)
-    if law == GAS_ADIABATIC:
-        return p_atm * (wp.pow(J, -gamma) - 1.0)
-    return 0.0
-
-
-@wp.func
-def gas_compressibility(law: int, J: float, gamma: float, p_atm: float):
-    """kappa = 1 / bulk modulus: 1/p for isothermal gas, 1/(gamma p) adiabatic, 0 incompressible."""
-    p_abs = p_atm + gas_pressure(law, J, gamma, p_atm)
-    if law == GAS_ISOTHERMAL:
-        return 1.0 / p_abs
-    if law == GAS_ADIABATIC:
-        return 1.0 / (gamma * p_abs)
-    return 0.0
 
 
 @wp.kernel

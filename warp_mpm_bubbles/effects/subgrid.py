@@ -46,6 +46,7 @@ import numpy as np
 import warp as wp
 
 from ..core.cells import cell_of
+from ..core.gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
@@ -54,8 +55,7 @@ from ..scene.effects import SubgridBubbles
 from .subgrid_drag import (ADDED_MASS, PI, add_face_impulse, drag_impulse_per_speed, face_fluid_mass,
                            implicit_relative_speed)
 from ..core.transfer_kernels import (
-    GAS_ADIABATIC, GAS_ISOTHERMAL, U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity,
-    wall_stopped,
+    U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})

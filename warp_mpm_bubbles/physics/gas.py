@@ -1,8 +1,8 @@
 """Gas: the compressible phase of the one two-phase system (docs/design.md, "The gas").
 
-The gas law and the system itself are core (core/transfer_kernels.p2g_gas sums p and kappa per
-cell, core/grid_kernels.pressure_diagonal_and_rhs puts kappa/dt^2 on the diagonal), because every
-two-phase face needs both sides. This stage owns what only gas scenes do:
+The gas law and the system itself are core (core/gas_law.py; core/transfer_kernels.p2g_gas sums p
+and kappa per cell, core/grid_kernels.pressure_diagonal_and_rhs puts kappa/dt^2 on the diagonal),
+because every two-phase face needs both sides. This stage owns what only gas scenes do:
 
     after_p2g      gas mass, volume, p V and kappa V per cell
     on_cells       which fluid cells are gas; where the open air starts above each column
@@ -27,7 +27,8 @@ from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
 from ..core.stage import Stage
-from ..core.transfer_kernels import (CELL_OFFSET, GAS_ADIABATIC, clamp_to_domain, gas_pressure, gas_volume_rate,
+from ..core.gas_law import GAS_ADIABATIC, gas_pressure
+from ..core.transfer_kernels import (CELL_OFFSET, clamp_to_domain, gas_volume_rate,
                                      grid_coord, make_stencil, p2g_gas, update_gas_J)
 from .cavity import CAVITY_ENTER, CAVITY_GAS, Cavities
 

@@ -8,8 +8,9 @@ import warp as wp
 
 from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
-from warp_mpm_bubbles.core.grid import INTERFACE_SHARP
 from warp_mpm_bubbles.core.gas_law import cell_compressibility
+from warp_mpm_bubbles.core.grid import FLUID, INTERFACE_SHARP
+from warp_mpm_bubbles.core.transfer_kernels import gas_volume_rate
 from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
@@ -393,9 +394,6 @@ def test_a_gas_cells_compressibility_matches_the_volume_change_its_gas_takes():
     dp = -r dt / kappa_gas. The two agree only with kappa_cell = kappa_gas V_g / dx^3, in a cell the
     particles under- or over-fill too: with V_g / (V_g + V_l) a lone sliver of gas among empty cells
     had its J moved 1/alpha times more than the solve assumed and ran away (the pour: 241 m/s)."""
-    from warp_mpm_bubbles.core.grid import FLUID
-    from warp_mpm_bubbles.core.transfer_kernels import gas_volume_rate
-
     dx, kappa_gas, div = 0.01, 1.0 / 101325.0, 3.0  # 1/Pa; 1/s
     fractions = np.array([0.05, 0.17, 0.5, 1.0, 1.3])  # V_g / dx^3: slivers, a full cell, an over-full one
     n = len(fractions)

@@ -11,9 +11,11 @@ The parts are chosen so that the results do not depend on how many there are:
   CG's vector kernels over a large box (lines of cells, core/lines.py): slabs of lines, for kernels
   that write only the cells they walk. The CG's dot products are summed per plane of the box (a
   plane is one slab's) and then over the planes in order (core/pressure.py), so they too are the
-  same for any number of slabs. The pressure system's assembly counts cells and stays one launch;
+  same for any number of slabs; the pressure system's assembly counts its fluid and pinned cells per
+  slab (integers, added on the host);
 - the particles' bounding box (core/active_box.py): ranges of particles, each with its own minima
   and maxima, combined exactly.
+Counters and extrema that every part updates lie CACHE_LINE_FLOATS apart (below).
 
 Threads: `WARP_MPM_CPU_THREADS` if set (1: one launch, as before), else the cores this process may
 use, at most MAX_THREADS. On a GPU there is one launch.

@@ -2,7 +2,7 @@
 published benchmark and in 3D against Adelsberger et al.'s, and the free-surface rising bubble of
 accuracy_vs_time.py against itself.
 
-    python benchmarks/convergence.py                      # full study: 33 min on 2 shared CPU cores
+    python benchmarks/convergence.py                      # full study: about 45 min on 2 CPU cores
     python benchmarks/convergence.py --quick              # smaller grids, shorter runs: 3.4 min
     python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
     python benchmarks/convergence.py --report-only        # re-render from the saved runs
@@ -24,7 +24,8 @@ Cases (docs/convergence.md explains the mapping):
 Per run, sampled 60 times: gas centroid, rise speed (the centroid's rate of change; the gas
 particles' mean velocity too), circularity / sphericity (diagnostics.gas_shape), the gas contour's
 area / volume over the gas particles' (diagnostics.field_shape unsmoothed), void cells
-(diagnostics.void_cells); wall time. Each run is saved on its own (benchmarks/results/
+(diagnostics.void_cells) and bubble gaps; wall time. After every step: the gas centroid (the rise
+speed's peak and its time come from it, through a fixed window: `windowed`, `extremum`). Each run is saved on its own (benchmarks/results/
 convergence_runs/<case>_<resolution>.json, replaced when rerun), so cases and resolutions can be run
 separately and the report merges what is there. Writes benchmarks/results/convergence.{json,csv,md}
 and docs/convergence.png (--quick: benchmarks/results/convergence_quick*).
@@ -61,7 +62,7 @@ import warp_mpm_bubbles  # noqa: E402
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere  # noqa: E402
 from warp_mpm_bubbles.core.simulation import Simulation  # noqa: E402
 from warp_mpm_bubbles.core.timing import describe_device  # noqa: E402
-from warp_mpm_bubbles.diagnostics import field_shape, gas_fraction, void_cells  # noqa: E402
+from warp_mpm_bubbles.diagnostics import field_shape, gap_cells, gas_fraction, void_cells  # noqa: E402
 from warp_mpm_bubbles.scene.quality import PRESETS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -80,6 +81,7 @@ class Case:
     t_end: float
     quick_t_end: float
     reference: dict  # metric -> (value, time or None, source)
+    trough: bool = True  # the shape's minimum is a trough it recovers from (else a plateau: no time of minimum)
 
 
 HYSING = "Hysing et al. 2009, Int. J. Numer. Meth. Fluids 60:1259, test case 1 (TP2D/FreeLIFE/MooNMD)"
@@ -89,13 +91,13 @@ HYSING = "Hysing et al. 2009, Int. J. Numer. Meth. Fluids 60:1259, test case 1 (
 ADELSBERGER = ("Adelsberger et al. 2014, WCCM XI, test case 1 (DROPS / NaSt3DGPF series: peak 0.3570 / 0.3587, "
                "centroid 1.471 / 1.468, min sphericity 0.959 / 0.9596)")
 CASES = {c.key: c for c in [
-    Case("hysing_2d", 2, (1.0, 2.0), "cells across", (20, 40, 80), (10, 20, 40), 3.0, 1.0,
+    Case("hysing_2d", 2, (1.0, 2.0), "cells across", (20, 40, 80, 160), (10, 20, 40), 3.0, 1.0,
          {"circularity_min": (0.9013, 1.9, HYSING), "rise_speed_max": (0.2417, 0.92, HYSING),
           "centroid_end": (1.081, 3.0, HYSING)}),
-    Case("adelsberger_3d", 3, (1.0, 2.0, 1.0), "cells across", (12, 18, 27), (8, 12, 16), 3.0, 1.0,
+    Case("adelsberger_3d", 3, (1.0, 2.0, 1.0), "cells across", (12, 18, 27, 36, 48), (8, 12, 16), 3.0, 1.0,
          {"circularity_min": (0.959, 1.9, ADELSBERGER), "rise_speed_max": (0.358, 0.89, ADELSBERGER),
-          "centroid_end": (1.470, 3.0, ADELSBERGER)}),
-    Case("free_surface_2d", 2, (0.08, 0.16), "cells per radius", (4, 8, 16), (3, 6, 12), 0.15, 0.08, {}),
+          "centroid_end": (1.470, 3.0, ADELSBERGER)}, trough=False),
+    Case("free_surface_2d", 2, (0.08, 0.16), "cells per radius", (4, 8, 16, 32), (3, 6, 12), 0.15, 0.08, {}),
 ]}
 
 
@@ -133,7 +135,24 @@ def sample(sim: Simulation, gas_index: int) -> dict:
     return {"t": sim.time, "centroid_y": float(centroid[1]), "particle_speed": speed,
             "roundness": shape["circularity" if dim == 2 else "sphericity"],
             "gas_region_ratio": enclosed / float(v.sum()),
-            "voids": void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up), "steps": sim.stats.steps}
+            # voids apart from the bubble gaps (particle-free cells beside compressible gas: its own to fill)
+            "voids": void_cells(sim.fields.types.numpy(), sim.grid.ghost, sim.up, sim.voids.gap_mask()),
+            "gaps": gap_cells(sim), "steps": sim.stats.steps}
+
+
+def tracker(sim: Simulation, gas_index: int, track: dict):
+    """A per-step callback: the time, the gas centroid's height and the gas particles' mean vertical
+    velocity after every step (views on the particle arrays: no copies), for the rise speed's peak."""
+    def on_step(dt, remaining):
+        start = time.perf_counter()
+        p = sim.particles
+        g = (p.numpy("material") == gas_index) & (p.numpy("active") == 1)
+        vol = (p.numpy("vol0") * p.numpy("J"))[g].astype(np.float64)
+        track["t"].append(sim.time)
+        track["centroid_y"].append(float((p.numpy("x")[g, 1] * vol).sum() / vol.sum()))
+        track["particle_speed"].append(float((p.numpy("v")[g, 1] * vol).sum() / vol.sum()))
+        track["cost_s"] += time.perf_counter() - start
+    return on_step
 
 
 def run_one(case: Case, res: int, t_end: float, device, quality: str = "production", seed: int = 0) -> dict:
@@ -141,19 +160,23 @@ def run_one(case: Case, res: int, t_end: float, device, quality: str = "producti
         sim = Simulation(scene(case, res, tmp, quality, seed), device)
         gas_index = [m.is_gas for m in sim.scene.materials.values()].index(True)
         series = [sample(sim, gas_index)]
+        track = {"t": [sim.time], "centroid_y": [series[0]["centroid_y"]], "particle_speed": [0.0], "cost_s": 0.0}
+        on_step = tracker(sim, gas_index, track)
         wall = 0.0
         for k in range(1, SAMPLES + 1):
             start = time.perf_counter()
-            sim.advance_to(t_end * k / SAMPLES)
+            sim.advance_to(t_end * k / SAMPLES, on_step)
             wall += time.perf_counter() - start
             series.append(sample(sim, gas_index))
             s = series[-1]
             print(f"  {case.key} {res} {quality} s{seed}: t {s['t']:.3f} y {s['centroid_y']:.4f} v {s['particle_speed']:.4f} "
                   f"round {s['roundness']:.4f} voids {s['voids']} ({wall:.0f} s)", file=sys.stderr, flush=True)
+        wall -= track.pop("cost_s")  # the solver's time only
         return {"case": case.key, "resolution": res, "quality": quality, "seed": seed,
                 "refine": sim.scene.solver.refine, "t_end": t_end, "dx": sim.grid.dx,
                 "particles": sim.num_particles, "steps": sim.stats.steps, "wall_s": wall,
-                "device": describe_device(device), "series": series, "summary": summarize(series)}
+                "device": describe_device(device), "series": series, "track": track,
+                "summary": summarize(series, track, case.trough)}
 
 
 def centroid_speed(series: list[dict]) -> np.ndarray:
@@ -163,40 +186,116 @@ def centroid_speed(series: list[dict]) -> np.ndarray:
     return np.gradient([s["centroid_y"] for s in series], [s["t"] for s in series])
 
 
-def summarize(series: list[dict]) -> dict:
+def windowed(t, y, half_width: float, t_from: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The series seen through a window of +-half_width: at each centre (steps of half_width / 50,
+    from t_from + half_width to the end less half_width) a least-squares quadratic through the
+    points within the window; returns the centres, the fits' values and their slopes there. The
+    same window at every grid makes each a functional of the trajectory, which converges when the
+    trajectory does; an extremum of the raw series does not: the speed jitters by 0.6-2% between
+    steps (the volume correction answering the particles' sampling noise; it shrinks with dx, see
+    particle_speed_noise) and the peaks are flat (the rise speed within 0.1% over 0.15 s in
+    hysing_2d), so the 60 samples' own argmax jumped a sample either way between grids."""
+    t, y = np.asarray(t), np.asarray(y)
+    centres = np.arange(t_from + half_width, t[-1] - half_width + 1e-9, half_width / 50)
+    fits = [np.polyfit((t[near] - at) / half_width, y[near], 2) for at in centres
+            for near in [np.abs(t - at) <= half_width]]
+    return centres, np.array([f[2] for f in fits]), np.array([f[1] / half_width for f in fits])
+
+
+def extremum(t, y, half_width: float, t_from: float, kind: str) -> dict:
+    """The windowed series' (see `windowed`) largest slope (kind "peak_slope": the rise speed from
+    the centroid) or smallest value ("trough": the shape), its time, and the spread of that time:
+    the centres whose windowed figure lies within two standard errors of the extremum's (the
+    scatter about a cubic through the extremum's window, through the quadratic fit's covariance),
+    contiguous around it. A flat extremum of a noisy series has a wide spread: its time is known only that well."""
+    t, y = np.asarray(t), np.asarray(y)
+    centres, values, slopes = windowed(t, y, half_width, t_from)
+    series = slopes if kind == "peak_slope" else -values
+    i = int(series.argmax())
+    near = np.abs(t - centres[i]) <= half_width
+    tau = (t[near] - centres[i]) / half_width
+    # the noise: the scatter about a cubic (a quadratic's own misfit to a smooth peak is not noise)
+    scatter = np.sum((y[near] - np.polyval(np.polyfit(tau, y[near], 3), tau)) ** 2) / max(len(tau) - 4, 1)
+    basis = np.vstack([tau**2, tau, np.ones_like(tau)]).T
+    cov = scatter * np.linalg.inv(basis.T @ basis)
+    error = np.sqrt(cov[1, 1]) / half_width if kind == "peak_slope" else np.sqrt(cov[2, 2])
+    within = series >= series[i] - 2.0 * error
+    lo = hi = i
+    while lo > 0 and within[lo - 1]:
+        lo -= 1
+    while hi < len(within) - 1 and within[hi + 1]:
+        hi += 1
+    return {"value": float(slopes[i] if kind == "peak_slope" else values[i]), "t": float(centres[i]),
+            "spread": float(centres[hi] - centres[lo] + centres[1] - centres[0])}  # at least the centres' step
+
+
+def summarize(series: list[dict], track: dict | None = None, trough: bool = True) -> dict:
     t = np.array([s["t"] for s in series])
     col = {k: np.array([s[k] for s in series]) for k in ("centroid_y", "roundness", "gas_region_ratio", "voids")}
     col["rise_speed"] = centroid_speed(series)
     col["particle_speed"] = np.array([s.get("particle_speed", s.get("rise_speed")) for s in series])
-    i_v, i_r = int(col["rise_speed"].argmax()), int(col["roundness"][1:].argmin()) + 1
-    return {"rise_speed_max": float(col["rise_speed"][i_v]), "t_rise_speed_max": float(t[i_v]),
-            "particle_speed_max": float(col["particle_speed"].max()),
-            "rise_speed_end": float(col["rise_speed"][-1]),
-            # over the last two thirds (free_surface_2d: accuracy_vs_time.py's 0.05-0.15 s window)
-            "rise_speed_mean_late": float((col["centroid_y"][-1] - col["centroid_y"][len(t) // 3])
-                                          / (t[-1] - t[len(t) // 3])), "centroid_end": float(col["centroid_y"][-1]),
-            "roundness_min": float(col["roundness"][i_r]), "t_roundness_min": float(t[i_r]),
-            "gas_region_ratio_end": float(col["gas_region_ratio"][-1]),
-            # against the perfectly seeded bubble at t = 0: the contour's own bias at this grid cancels
-            "gas_region_change_end": float(col["gas_region_ratio"][-1] / col["gas_region_ratio"][0] - 1.0),
-            "voids_max": int(col["voids"].max())}
+    width = t[-1] / 20  # 0.15 s at t_end 3: 3 samples either side, hundreds of steps
+    # every step's centroid (runs saved before the track: the samples); the shape only at the samples
+    rising = (track["t"], track["centroid_y"]) if track and len(track["t"]) > 20 else (t, col["centroid_y"])
+    peak = extremum(*rising, width, t[1], "peak_slope")
+    trough_ = extremum(t, col["roundness"], width, t[1], "trough")
+    out = {"rise_speed_max": peak["value"], "t_rise_speed_max": peak["t"], "t_rise_speed_max_spread": peak["spread"],
+           # the particles' mean velocity about the centroid's rate: MPM's step-to-step noise, 0 in the limit
+           "particle_speed_noise": float(np.sqrt(np.mean((col["particle_speed"] - col["rise_speed"])[1:-1] ** 2))),
+           "rise_speed_end": float(col["rise_speed"][-1]),  # the last sample interval's mean
+           # over the last two thirds (free_surface_2d: accuracy_vs_time.py's 0.05-0.15 s window)
+           "rise_speed_mean_late": float((col["centroid_y"][-1] - col["centroid_y"][len(t) // 3])
+                                         / (t[-1] - t[len(t) // 3])), "centroid_end": float(col["centroid_y"][-1]),
+           "roundness_min": trough_["value"],
+           "gas_region_ratio_end": float(col["gas_region_ratio"][-1]),
+           # against the perfectly seeded bubble at t = 0: the contour's own bias at this grid cancels
+           "gas_region_change_end": float(col["gas_region_ratio"][-1] / col["gas_region_ratio"][0] - 1.0),
+           "voids_max": int(col["voids"].max())}
+    if all("gaps" in x for x in series):  # runs saved before the field: voids and gaps counted together
+        out["gaps_max"] = int(max(x["gaps"] for x in series))
+    if trough:  # a plateau's minimum (adelsberger_3d's terminal shape) has no time
+        out["t_roundness_min"], out["t_roundness_min_spread"] = trough_["t"], trough_["spread"]
+    return out
 
 
-METRICS = ["rise_speed_max", "t_rise_speed_max", "particle_speed_max", "rise_speed_end", "rise_speed_mean_late",
-           "centroid_end", "roundness_min", "t_roundness_min", "gas_region_ratio_end", "gas_region_change_end",
-           "voids_max"]
+METRICS = ["rise_speed_max", "t_rise_speed_max", "t_rise_speed_max_spread", "particle_speed_noise", "rise_speed_end",
+           "rise_speed_mean_late", "centroid_end", "roundness_min", "t_roundness_min", "t_roundness_min_spread",
+           "gas_region_ratio_end", "voids_max", "gaps_max"]
+# Metrics whose converged value is known: no noise, the gas region exactly the gas particles' area
+# (volume), no voids, an extremum's time known exactly (its spread 0). (gas_region_change_end, in the
+# summary, is not a convergence metric: docs/convergence.md.)
+LIMITS = {"particle_speed_noise": 0.0, "gas_region_ratio_end": 1.0, "voids_max": 0, "gaps_max": 0,
+          "t_rise_speed_max_spread": 0.0, "t_roundness_min_spread": 0.0}
+# An extremum's time and its spread (`extremum`): where its differences do not shrink, they may still
+# lie within the spreads (each pair of estimates agrees within what either run determines): "within spread".
+SPREADS = {"t_rise_speed_max": "t_rise_speed_max_spread", "t_roundness_min": "t_roundness_min_spread"}
 REF_KEY = {"rise_speed_max": "rise_speed_max", "centroid_end": "centroid_end", "roundness_min": "circularity_min"}
 
 
-def convergence(values: list[float], ratios: list[float]) -> dict:
+def convergence(values: list[float], ratios: list[float], limit: float | None = None,
+                spreads: list[float] | None = None) -> dict:
     """Successive differences and the observed order p = log(d_k / d_k+1) / log(r_k+1), the refinement
-    ratio r between the two finer levels (equal ratios give the textbook log2 form for r = 2)."""
+    ratio r between the two finer levels (equal ratios give the textbook log2 form for r = 2). For a
+    metric whose converged value is known (`limit`: the noise and the void cells, 0), the errors
+    e_k = |m_k - limit| themselves must shrink, with p = log(e_k / e_k+1) / log(r_k); "exact" when
+    every level is at the limit. With `spreads` (an extremum's time), differences that do not shrink
+    but each lie within the two levels' mean spread are "within spread"."""
     d = [b - a for a, b in zip(values, values[1:])]
+    if limit is not None:
+        e = [abs(v - limit) for v in values]
+        orders = [math.log(e0 / e1) / math.log(r) if e0 and e1 else float("nan") for e0, e1, r in zip(e, e[1:], ratios)]
+        shrinking = all(b < a for a, b in zip(e, e[1:]))
+        verdict = "exact" if not any(e) else "no" if not shrinking else \
+            "barely" if min(orders) < 0.5 else "yes"
+        return {"differences": d, "orders": orders, "shrinking": shrinking or verdict == "exact",
+                "verdict": verdict, "limit": limit}
     orders = [math.log(abs(d0) / abs(d1)) / math.log(r) if d0 and d1 else float("nan")
               for d0, d1, r in zip(d, d[1:], ratios[1:])]
     shrinking = all(abs(b) < abs(a) for a, b in zip(d, d[1:]))
     # "barely": every difference smaller than the last, but by less than r^0.5 (order < 0.5)
     verdict = "no" if not shrinking else "barely" if orders and min(orders) < 0.5 else "yes"
+    if verdict == "no" and spreads and all(abs(x) <= 0.5 * (a + b) for x, a, b in zip(d, spreads, spreads[1:])):
+        verdict = "within spread"
     out = {"differences": d, "orders": orders, "shrinking": shrinking, "verdict": verdict}
     if orders and 0.5 <= orders[-1] <= 4 and d[-1] * d[-2] > 0:  # monotone, a plausible order: Richardson
         out["richardson"] = values[-1] + d[-1] / (ratios[-1] ** orders[-1] - 1.0)
@@ -251,10 +350,10 @@ def presets_report(runs: list[dict]) -> dict:
             rows = []
             for r in sorted(at, key=lambda r: (list(PRESETS).index(r.get("quality", "production")),
                                                r.get("seed", 0))):
-                summary, errors = summarize(r["series"]), {}
+                summary, errors = summarize(r["series"], r.get("track"), case.trough), {}
                 for m in PRESET_METRICS:
                     ref = published.get(REF_KEY[m])
-                    target = ref[0] if ref else (summarize(finest["series"])[m] if finest else float("nan"))
+                    target = ref[0] if ref else (summarize(finest["series"], finest.get("track"), case.trough)[m] if finest else float("nan"))
                     errors[m] = summary[m] / target - 1.0
                 rows.append({"quality": r.get("quality", "production"), "seed": r.get("seed", 0),
                              "grid": res * r.get("refine", 1), "wall_s": r["wall_s"], "steps": r["steps"],
@@ -279,9 +378,14 @@ def report(runs: list[dict], command: str) -> dict:
                  "code": [r.get("code", "b8f0711") for r in mine],  # runs before the field: the baseline
                  "steps": [r["steps"] for r in mine], "particles": [r["particles"] for r in mine],
                  "t_end": mine[-1]["t_end"], "metrics": {}}
-        for m in METRICS:
-            vals = [summarize(r["series"])[m] for r in mine]  # from the series: metrics can change later
-            entry["metrics"][m] = {"values": vals, **convergence(vals, ratios)}
+        summaries = [summarize(r["series"], r.get("track"), case.trough) for r in mine]  # metrics can change later
+        for m in (m for m in METRICS if all(m in s for s in summaries)):
+            vals = [s[m] for s in summaries]
+            spreads = [s[SPREADS[m]] for s in summaries] if m in SPREADS else None
+            entry["metrics"][m] = {"values": vals, **convergence(vals, ratios, LIMITS.get(m), spreads)}
+            # the finest three alone: the asymptotic range, where a coarse level's pre-asymptotic step is left out
+            entry["metrics"][m]["verdict_finest3"] = convergence(vals[-3:], ratios[-2:], LIMITS.get(m),
+                                                                 spreads and spreads[-3:])["verdict"]
             ref = case.reference.get(REF_KEY.get(m, ""))
             if ref and mine[-1]["t_end"] >= case.t_end:
                 entry["metrics"][m]["reference"] = ref[0]
@@ -296,6 +400,9 @@ def fmt(x, digits=4):
         f"{x:d}" if isinstance(x, int) else f"{x:.{digits}g}")
 
 
+VERDICT = {"yes": "yes", "barely": "barely", "no": "**no**", "exact": "exact (0)", "within spread": "within spread"}
+
+
 def markdown(rep: dict) -> str:
     lines = [f"# Convergence study ({rep['date']}, solver at {rep['code']})", "", f"`{rep['command']}`", ""]
     for key, e in rep["cases"].items():
@@ -304,18 +411,18 @@ def markdown(rep: dict) -> str:
         lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", ""]
         lines += [f"**Runs from different solver versions: {', '.join(e['code'])}.** Re-run them all.", ""] \
             if mixed else []
-        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | observed order | "
-                  "Richardson | reference |", "|---|" + "---:|" * (len(lv) + 5)]
+        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | finest three | observed order | "
+                  "Richardson | reference |", "|---|" + "---:|" * (len(lv) + 6)]
         for m, d in e["metrics"].items():
             ref = f"{d['reference']:g} (errors {', '.join(f'{100 * x:+.1f}%' for x in d['error'])})" \
                 if "reference" in d else ""
             lines.append(f"| {m} | " + " | ".join(fmt(v) for v in d["values"]) + " | "
                          + ", ".join(fmt(x, 2) for x in d["differences"]) + " | "
-                         + {"yes": "yes", "barely": "barely", "no": "**no**"}[d["verdict"]] + " | "
+                         + " | ".join(VERDICT[v] for v in (d["verdict"], d["verdict_finest3"])) + " | "
                          + ", ".join(fmt(x, 2) for x in d["orders"]) + " | " + fmt(d.get("richardson")) + f" | {ref} |")
-        lines += ["| wall s | " + " | ".join(f"{w:.0f}" for w in e["wall_s"]) + " |" * 6,
-                  "| steps | " + " | ".join(map(str, e["steps"])) + " |" * 6,
-                  "| particles | " + " | ".join(map(str, e["particles"])) + " |" * 6, ""]
+        lines += ["| wall s | " + " | ".join(f"{w:.0f}" for w in e["wall_s"]) + " |" * 7,
+                  "| steps | " + " | ".join(map(str, e["steps"])) + " |" * 7,
+                  "| particles | " + " | ".join(map(str, e["particles"])) + " |" * 7, ""]
     for e in rep.get("presets", {}).values():
         lines += [f"## Presets: {e['case']} at {e['resolution']} {e['unit']} (errors against {e['against']})", "",
                   "| preset | seed | grid | " + " | ".join(PRESET_METRICS) + " | wall s | steps |",
@@ -340,8 +447,14 @@ def plot(runs: list[dict], path: Path):
         for r in sorted((r for r in runs if r["case"] == key and is_study_run(r)), key=lambda r: r["resolution"]):
             s = r["series"]
             t = [x["t"] for x in s]
-            for ax, y in zip(row, (centroid_speed(s), [x["centroid_y"] for x in s], [x["roundness"] for x in s])):
-                ax.plot(t, y, label=f"{r['resolution']} {case.unit}")
+            label = f"{r['resolution']} {case.unit}"
+            if r.get("track") and len(r["track"]["t"]) > 20:  # the windowed speed the peak is read from
+                centres, _, speed = windowed(r["track"]["t"], r["track"]["centroid_y"], t[-1] / 20, t[1])
+                row[0].plot(centres, speed, label=label)
+            else:
+                row[0].plot(t, centroid_speed(s), label=label)
+            for ax, y in zip(row[1:], ([x["centroid_y"] for x in s], [x["roundness"] for x in s])):
+                ax.plot(t, y, label=label)
         for ax, m, ref in zip(row, ("rise speed", "centroid y", "circularity" if case.dim == 2 else "sphericity"),
                               ("rise_speed_max", "centroid_end", "circularity_min")):
             ax.set_title(f"{key}: {m}", fontsize=9)
@@ -416,7 +529,7 @@ def main(argv=None) -> int:
     (RESULTS / f"{tag}.md").write_text(md)
     with open(RESULTS / f"{tag}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        keys = ("t", "centroid_y", "particle_speed", "roundness", "gas_region_ratio", "voids", "steps")
+        keys = ("t", "centroid_y", "particle_speed", "roundness", "gas_region_ratio", "voids", "gaps", "steps")
         w.writerow(["case", "resolution", "quality", "seed", *keys, "rise_speed"])
         for r in runs:
             speed = centroid_speed(r["series"])

@@ -1,12 +1,10 @@
 """Smoke test of benchmarks/accuracy_vs_time.py: --quick on its cheapest case (the 2D Laplace drop)."""
 
 import csv
-import importlib.util
 import math
-import pathlib
-import sys
 
-SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "accuracy_vs_time.py"
+from benchmark_script import load_benchmark
+
 EXPECTED_COLUMNS = [
     "case", "metric", "setting", "value", "is_default", "run_id", "batch", "quality", "resolution", "resolution_unit",
     "dx", "refine", "particles_per_cell", "cfl", "cg_tolerance", "interface", "seed", "particles", "cells", "steps",
@@ -15,11 +13,7 @@ EXPECTED_COLUMNS = [
 
 
 def _load_harness():
-    spec = importlib.util.spec_from_file_location("accuracy_vs_time", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the file executes
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("accuracy_vs_time")
 
 
 def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):

@@ -2,23 +2,14 @@
 the windowed rise speed, an extremum's time and spread, and the verdicts. Synthetic series, no
 simulation: the study's conclusions rest on these functions reading a known answer right."""
 
-import importlib.util
-import pathlib
-import sys
-
 import numpy as np
 import pytest
-
-SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "convergence.py"
+from benchmark_script import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def study():
-    spec = importlib.util.spec_from_file_location("convergence_study", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the file executes
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("convergence")
 
 
 T = np.arange(0.0, 3.0 + 1e-9, 0.002)  # a step's spacing of the 2D runs

@@ -2,7 +2,7 @@
 published benchmark and in 3D against Adelsberger et al.'s, and the free-surface rising bubble of
 accuracy_vs_time.py against itself.
 
-    python benchmarks/convergence.py                      # full study: about 45 min on 2 CPU cores
+    python benchmarks/convergence.py                      # full study: about 40 min on 2 CPU cores
     python benchmarks/convergence.py --quick              # smaller grids, shorter runs: 3.4 min
     python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
     python benchmarks/convergence.py --report-only        # re-render from the saved runs

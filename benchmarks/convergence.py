@@ -3,7 +3,7 @@ published benchmark and in 3D against Adelsberger et al.'s, and the free-surface
 accuracy_vs_time.py against itself.
 
     python benchmarks/convergence.py                      # full study: about 40 min on 2 CPU cores
-    python benchmarks/convergence.py --quick              # smaller grids, shorter runs: 3.4 min
+    python benchmarks/convergence.py --quick              # smaller grids, shorter runs: about 40 s
     python benchmarks/convergence.py --cases hysing_2d --resolutions 20,40,80,160
     python benchmarks/convergence.py --report-only        # re-render from the saved runs
     python benchmarks/convergence.py --device cuda:0 --cases adelsberger_3d --resolutions 18,27,40
@@ -25,10 +25,11 @@ Per run, sampled 60 times: gas centroid, rise speed (the centroid's rate of chan
 particles' mean velocity too), circularity / sphericity (diagnostics.gas_shape), the gas contour's
 area / volume over the gas particles' (diagnostics.field_shape unsmoothed), void cells
 (diagnostics.void_cells) and bubble gaps; wall time. After every step: the gas centroid (the rise
-speed's peak and its time come from it, through a fixed window: `windowed`, `extremum`). Each run is saved on its own (benchmarks/results/
-convergence_runs/<case>_<resolution>.json, replaced when rerun), so cases and resolutions can be run
-separately and the report merges what is there. Writes benchmarks/results/convergence.{json,csv,md}
-and docs/convergence.png (--quick: benchmarks/results/convergence_quick*).
+speed's peak and its time come from it, through a fixed window: `windowed`, `extremum`). Each run
+is saved on its own (benchmarks/results/convergence_runs/<case>_<resolution>.json, replaced when
+rerun), so cases and resolutions can be run separately and the report merges what is there.
+Writes benchmarks/results/convergence.{json,csv,md} and docs/convergence.png (--quick:
+benchmarks/results/convergence_quick*).
 
 Quality presets (issue #12, item 6): --quality runs the cases at each preset as a scene's
 [solver].quality sets it (reference also refines the grid: `refine` cells per cell_size), --seeds
@@ -348,12 +349,13 @@ def presets_report(runs: list[dict]) -> dict:
             if len({r.get("quality", "production") for r in at}) < 2:
                 continue
             rows = []
+            finest_summary = summarize(finest["series"], finest.get("track"), case.trough) if finest else None
             for r in sorted(at, key=lambda r: (list(PRESETS).index(r.get("quality", "production")),
                                                r.get("seed", 0))):
                 summary, errors = summarize(r["series"], r.get("track"), case.trough), {}
                 for m in PRESET_METRICS:
                     ref = published.get(REF_KEY[m])
-                    target = ref[0] if ref else (summarize(finest["series"], finest.get("track"), case.trough)[m] if finest else float("nan"))
+                    target = ref[0] if ref else (finest_summary[m] if finest_summary else float("nan"))
                     errors[m] = summary[m] / target - 1.0
                 rows.append({"quality": r.get("quality", "production"), "seed": r.get("seed", 0),
                              "grid": res * r.get("refine", 1), "wall_s": r["wall_s"], "steps": r["steps"],
@@ -411,8 +413,8 @@ def markdown(rep: dict) -> str:
         lines += [f"## {key} ({e['unit']} {', '.join(map(str, lv))}; t_end {e['t_end']:g})", ""]
         lines += [f"**Runs from different solver versions: {', '.join(e['code'])}.** Re-run them all.", ""] \
             if mixed else []
-        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | finest three | observed order | "
-                  "Richardson | reference |", "|---|" + "---:|" * (len(lv) + 6)]
+        lines += ["| metric | " + " | ".join(map(str, lv)) + " | differences | shrinking | finest three | "
+                  "observed order | Richardson | reference |", "|---|" + "---:|" * (len(lv) + 6)]
         for m, d in e["metrics"].items():
             ref = f"{d['reference']:g} (errors {', '.join(f'{100 * x:+.1f}%' for x in d['error'])})" \
                 if "reference" in d else ""
@@ -503,15 +505,20 @@ def main(argv=None) -> int:
         print(f"--seeds: expected whole numbers >= 0 separated by commas, e.g. 0,1,2; got {args.seeds!r}",
               file=sys.stderr)
         return 2
+    try:
+        chosen = [int(x) for x in args.resolutions.split(",")] if args.resolutions else None
+        if chosen is not None and min(chosen) < 2:
+            raise ValueError
+    except ValueError:
+        print(f"--resolutions: expected whole numbers of at least 2 separated by commas (cells across, or per "
+              f"radius for free_surface_2d), e.g. 20,40,80; got {args.resolutions!r}", file=sys.stderr)
+        return 2
+    if args.t_end is not None and not (math.isfinite(args.t_end) and args.t_end > 0):
+        print(f"--t-end: expected a time in seconds > 0, e.g. 1.5; got {args.t_end!r}", file=sys.stderr)
+        return 2
     for key in keys:
         case = CASES[key]
-        try:
-            levels = [int(x) for x in args.resolutions.split(",")] if args.resolutions else \
-                (case.quick_levels if args.quick else case.levels)
-        except ValueError:
-            print(f"--resolutions: expected whole numbers separated by commas ({case.unit}), e.g. 20,40,80; "
-                  f"got {args.resolutions!r}", file=sys.stderr)
-            return 2
+        levels = chosen or (case.quick_levels if args.quick else case.levels)
         t_end = args.t_end or (case.quick_t_end if args.quick else case.t_end)
         for res in levels:
             for quality in qualities:

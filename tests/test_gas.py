@@ -60,8 +60,9 @@ def breathing(tmp_path_factory):
 
 def test_bubble_breathes_at_the_2d_minnaert_frequency(breathing):
     # Reference: omega0^2 = 2 p0 / (rho R0^2 ln(Rinf/R0)) (isothermal, sigma = 0) = 178.6 Hz.
-    # Measured -1.5% at 8 cells per radius (2026-12-05; -0.9% before a gas cell's compressibility took
-    # the gas's share of the cell; seed spread about 1%, docs/accuracy_vs_time.md); it was
+    # Measured -1.5% at 8 cells per radius (2026-12-05; -1.52% just before a gas cell's compressibility
+    # took the gas's share of the cell, -0.9% before the volume correction became a rate; seed spread
+    # about 1%, docs/accuracy_vs_time.md); it was
     # -7.6% before the gas took its cells' volume change (update_gas_J), which the old 10% bound
     # allowed. 3% bounds the measurement with the seed noise.
     up = upward_crossings(breathing["t"], breathing["V"])

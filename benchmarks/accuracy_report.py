@@ -204,17 +204,18 @@ Reading it (written for the runs recorded here; revisit if a rerun moves the num
 PRESETS_NOTE = """\
 What the presets buy (the table above; written for the runs recorded here, revisit if a rerun
 moves the numbers). Reference simulates a grid twice as fine along each axis (refine = 2), on top
-of cfl 0.25 and cg_tolerance 1e-6. The cases with surface tension were re-measured at 9120f3f
-(batch 5, the height-function curvature), the Minnaert bubble and the rising bubble again at b2f2d5f
-(batch 11, a gas cell's compressibility the gas's share of the cell), the dam breaks at b45dea0
-(batches 6-8); the closed
-tanks of benchmarks/convergence.py, which converge, carry the presets too (docs/convergence.md,
-"The quality presets"). Means over 3 seeds, production's first:
+of cfl 0.25 and cg_tolerance 1e-6. The Laplace drop was re-measured at 6adeb41 (batch 10, the
+best-centred height columns), the Minnaert bubble and the rising bubble at b2f2d5f (batch 11, a
+gas cell's compressibility the gas's share of the cell), the dam breaks at b45dea0 (batches 6-8);
+the closed tanks of benchmarks/convergence.py, which converge, carry the presets too
+(docs/convergence.md, "The quality presets"). Means over 3 seeds, production's first:
 
-- Reference lowers the error, beyond the seed noise, on every measure that converges with the
-  grid: the Laplace jump (0.63% against 1.39%; seed ranges 1.9% and 2.5%), the Minnaert frequency
-  (1.33% against 1.54%; ranges 0.22% and 0.17%), the 3D front position (0.028 a against 0.034 a)
-  and, in the convergence study, every metric of the 2D and 3D closed tanks.
+- Reference lowers the error on the measures that converge with the grid: the Minnaert frequency
+  (1.33% against 1.54%, by about its seed ranges of 0.22% and 0.17%), the 3D front position
+  (0.028 a against 0.034 a, ranges 0.0018 a and 0.0032 a) and, in the convergence study, every
+  metric of the 2D and 3D closed tanks. The short Laplace drop (the jump over t = 0.035-0.06 s)
+  sits at its seed noise in every preset (0.73% against 1.12%, ranges 2.1% and 2.2%): the finer
+  grid has nothing left to lower there (docs/convergence.md, best-centred height columns).
 - Not lowered: the dam break's volume drift (2D 0.93% against 0.94%, 3D 0.67% against 0.53%): it
   is set by the volume correction's relaxation time, not by the grid (the convergence notes); the
   front speed against Martin & Moyce (2D 5.4% against 4.2%, 3D 4.9% against 2.8%), which moves
@@ -224,12 +225,12 @@ tanks of benchmarks/convergence.py, which converge, carry the presets too (docs/
   (docs/convergence.md).
 - Preview against production: the same errors to 3 digits where cfl does not set the step (the
   Laplace drop and the Minnaert bubble: the capillary limit and the sampling interval do; the closed
-  tanks), for 0.8-1.2x the time there. Where it does, preview halves the steps: the dam break's
+  tanks), for 0.8-0.9x the time there. Where it does, preview halves the steps: the dam break's
   drift rises (2D 1.11% against 0.94%, 3D 0.71% against 0.53%) and its front position's RMS (2D
   0.033 a against 0.029 a, 3D 0.041 a against 0.034 a); the rising bubble's error moves within its
   seed ranges (3.5% against 4.4%, ranges 5.1% and 1.4%).
-- Cost, CPU seconds against production in the same batch: reference 3.6-4.9x for the 2D
-  capillary-limited and sampled cases (4x the cells), 8.5-10x for the 2D dam break and the rising
+- Cost, CPU seconds against production in the same batch: reference 4.3-4.6x for the 2D
+  capillary-limited and sampled cases (4x the cells), 8.4-12x for the 2D dam break and the rising
   bubble (4x the cells, 3.7-4x the steps), 20x for the 3D dam break (8x the cells, 3.6x the
   steps). Preview costs 0.5-0.6x where cfl sets the step.
 

@@ -9,8 +9,11 @@ Prints a table and writes benchmarks/results/velocity_jitter.{json,md}.
 
 Measured 2026-12-05 at c0f4e15, 40 cells: default 0.0046 m/s; volume_relaxation_time 1 ms 0.0051,
 1 s 0.0011; 9 / 16 particles per cell 0.0025 / 0.0017; cg_tolerance 1e-8, max_dt 2 ms,
-liquid_velocity = shared, gas_films = passive within 10% of the default. The volume correction,
-answering the particles' sampling noise in each cell's fill, is the source (docs/design.md#limitations).
+liquid_velocity = shared, gas_films = passive within 10% of the default. At 80 cells (--cells 80,
+5 min): default 0.0029; 1 ms 0.0039, 1 s 0.0011; 9 / 16 per cell 0.0012 / 0.0011; liquid_velocity =
+shared 0.0022; the others within 4%. About 0.0011 is a floor several variants reach at both grids.
+The volume correction, answering the particles' sampling noise in each cell's fill, is the main
+source (docs/design.md#limitations).
 """
 
 from __future__ import annotations

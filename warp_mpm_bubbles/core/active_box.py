@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .grid import PHASE_GAS
+from .grid import ACTIVE, PHASE_GAS
 from .lines import make_lines
 from .threads import CACHE_LINE_FLOATS, Parallel, split
 
@@ -54,7 +54,7 @@ def particle_cell_bounds(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.i
     (clamped to the arrays) of an active particle; box[slot + 6:12] the same of the resolved gas's
     (PHASE_GAS) particles."""
     p = wp.tid() + first
-    if active[p] == 0:
+    if active[p] != ACTIVE:
         return
     gas = phase[p] == PHASE_GAS
     for a in range(3):

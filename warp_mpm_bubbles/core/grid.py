@@ -27,6 +27,16 @@ PHASE_GAS = 1
 PHASE_FOAM = 2
 PHASE_SUBGRID = 3
 
+# A particle's `active` flag: 1 while simulated, 0 once retired. LEAVING marks, for the rest of the
+# kernel that moved it, a particle that crossed an open wall: the one serial pass that books its mass
+# as outflow (Simulation.book_outflow) retires it, so the ledger's sum has one order on the CPU.
+# AIRBORNE: liquid that crossed an open top (the wall against gravity) flies above the domain on its
+# own, in free fall (no grid reaches it), and rejoins the simulation when it falls back in.
+RETIRED = 0
+ACTIVE = 1
+LEAVING = 2
+AIRBORNE = 3
+
 # Gas-liquid interface methods ([solver].interface): ghost-fluid gas-liquid faces, or the published
 # "any gas particle makes a gas cell"; the kernels take the index.
 INTERFACES = ("sharp", "baseline")

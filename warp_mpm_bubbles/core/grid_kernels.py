@@ -71,8 +71,13 @@ def classify_cells(
     types: wp.array3d(dtype=wp.int32),
     box: Lines,
 ):
-    """Ghost cells take the type of their wall (open walls are empty); inside, a cell is fluid if
-    a particle is in it or if the splatted fill fraction exceeds HOLE_FRACTION.
+    """Ghost cells take the type of their wall; inside, a cell is fluid if a particle is in it or
+    if the splatted fill fraction exceeds HOLE_FRACTION.
+
+    An open wall's ghost cells are always EMPTY, the air outside at p = 0 gauge: the free surface's
+    ghost-fluid condition then puts p = 0 about at the wall's face, so liquid at the wall drains out
+    under its own head (water leaving a tank into the air), and particles crossing the face leave.
+    Read as fluid (the splats reach them), they would close the wall with a solid beyond them.
 
     Stretching flow (a wake, expanding gas) leaves particle-free cells inside the material; read
     as empty they would pin p = 0 inside the water and vent bubbles. A one-cell hole still gets
@@ -104,13 +109,16 @@ def classify_cells_at(
     c = wp.vec3i(i, j, k)
     in_wall = int(0)
     sticky = int(0)
+    outside = int(0)
     for a in range(3):
         wall = int(-1)
         if c[a] < ghost[a]:
             wall = wall_lo[a]
         if c[a] >= ghost[a] + interior[a]:
             wall = wall_hi[a]
-        if wall >= 0 and wall != WALL_OPEN:
+        if wall == WALL_OPEN:
+            outside = 1
+        elif wall >= 0:
             in_wall = 1
             if wall == WALL_NO_SLIP:
                 sticky = 1
@@ -119,6 +127,8 @@ def classify_cells_at(
             types[i, j, k] = SOLID_NO_SLIP
         else:
             types[i, j, k] = SOLID_FREE_SLIP
+    elif outside == 1:
+        types[i, j, k] = EMPTY
     elif count[i, j, k] > 0 or fill_fraction(liq_volume, gas_volume, two_phase, c, inv_cell_vol) > HOLE_FRACTION:
         types[i, j, k] = FLUID
     else:

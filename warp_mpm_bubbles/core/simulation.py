@@ -32,7 +32,8 @@ from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
-from .grid import INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, MacGrid
+from .grid import (INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, RETIRED,
+                   WALL_OPEN, MacGrid)
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
@@ -41,7 +42,7 @@ from .timing import StageTimer
 from . import threads
 from .threads import Parallel, cpu_threads, line_slabs, split
 from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
-from .transfer_kernels import G2P, P2G, fastest_of_parts, split_pairs
+from .transfer_kernels import G2P, P2G, book_outflow, fastest_of_parts, split_pairs
 from .voids import VoidPass
 
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
@@ -107,7 +108,8 @@ class Simulation:
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
         self.sort_every = SORT_EVERY
         self._sorted_at = 0  # the step of the last sort by cell
-        self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64)}
+        # next_id: the next particle's id; liquid_added: kg of liquid seeded and emitted (mass_budget)
+        self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64), "liquid_added": np.zeros(1)}
         self._init_geometry()
         self.particles = ParticleState(self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
@@ -133,12 +135,15 @@ class Simulation:
         walls = scene.domain.wall_types
         self.wall_lo = wp.vec3i(walls[0], walls[2], walls[4])
         self.wall_hi = wp.vec3i(walls[1], walls[3], walls[5])
+        open_lo = tuple(int(w == WALL_OPEN) for w in walls[0::2])
+        open_hi = tuple(int(w == WALL_OPEN) for w in walls[1::2])
+        self.open_walls = any(open_lo + open_hi)  # particles may leave: book_outflow runs after each mover
         gravity = tuple(scene.domain.gravity) + (0.0,) * (3 - g.dim)
         self.gravity = tuple(float(a) for a in gravity)
         g_abs = [abs(a) for a in self.gravity[: g.dim]]
         up_axis = int(np.argmax(g_abs)) if max(g_abs) > 0.0 else -1
         self.up = (up_axis, 1 if up_axis < 0 or self.gravity[up_axis] < 0.0 else -1)
-        self.geometry = grid_geometry(g, self.gravity, self.up)  # what the particle kernels take
+        self.geometry = grid_geometry(g, self.gravity, self.up, open_lo, open_hi)  # what the particle kernels take
         self.interface = INTERFACES.index(scene.solver.interface)
         self.two_phase = int(self.has_gas)
 
@@ -202,6 +207,9 @@ class Simulation:
             "ids": self.host_state["next_id"][0] + np.arange(n, dtype=np.int64),
         }
         self.host_state["next_id"] = self.host_state["next_id"] + n
+        liquid = values["phase"] == PHASE_LIQUID  # booked as stored (float32), so the ledger closes exactly
+        self.host_state["liquid_added"] = self.host_state["liquid_added"] + \
+            np.asarray(values["mass"], np.float32)[liquid].astype(np.float64).sum()
         added = self.particles.append(values, n)
         if n:
             self.max_particle_speed = max(self.max_particle_speed,
@@ -425,14 +433,23 @@ class Simulation:
         args = [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells]
         if self.parallel.threads == 1:
             self.launch(G2P[self.grid.dim], p.count, [*args, 0, f.max_speed, 0])
-            return
-        # One part per thread: particles are independent; their largest speed, combined exactly.
-        self.speed_parts.zero_()
-        cuts = split(0, p.count, self.parallel.threads)
-        line = threads.CACHE_LINE_FLOATS
-        self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
-                                                for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
-        self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
+        else:
+            # One part per thread: particles are independent; their largest speed, combined exactly.
+            self.speed_parts.zero_()
+            cuts = split(0, p.count, self.parallel.threads)
+            line = threads.CACHE_LINE_FLOATS
+            self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
+                                                    for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
+            self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
+        self.book_outflow()
+
+    def book_outflow(self):
+        """Retire the particles a mover marked as gone through an open wall, booking their mass by
+        phase (`outflow_mass`): every kernel that moves particles calls this after it, so no later
+        kernel sees a particle outside the domain. Nothing to do in a closed domain."""
+        if self.open_walls and self.particles.count:
+            p = self.particles
+            self.launch(book_outflow, p.count, [p.active, p.phase, p.mass, self.fields.outflow_mass])
 
     def launch_lines(self, kernel, lines, inputs):
         """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
@@ -534,20 +551,21 @@ class Simulation:
         COMPACT_RETIRED of the arrays, so launches and checkpoints do not grow with every particle
         ever made."""
         n = self.particles.count
-        keep = np.flatnonzero(self.particles.numpy("active") == 1)
+        keep = np.flatnonzero(self.particles.numpy("active") != RETIRED)
         if len(keep) == n or n - len(keep) < COMPACT_RETIRED * n:
             return
         self.particles.compact(keep)
 
     # ------------------------------------------------------------------------------ read-out
     def particles_numpy(self, include_retired: bool = False) -> dict[str, np.ndarray]:
-        """Copies of the state of the active particles (vented gas is retired), or of all of them.
+        """Copies of the state of the active particles (vented gas is retired; liquid flying above an
+        open top is active), or of all of them.
 
         Copies: on the CPU device .numpy() is a view that the next step changes.
         """
         p = self.particles
         view = {name: p.numpy(name) for name in ("x", "v", "material", "J", "mass", "vol0", "phase", "ids")}
-        keep = np.arange(p.count) if include_retired else np.flatnonzero(p.numpy("active") == 1)
+        keep = np.arange(p.count) if include_retired else np.flatnonzero(p.numpy("active") != RETIRED)
         ids = view["ids"][keep]
         if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # sorted by cell: back to id order
             keep = keep[np.argsort(ids, kind="stable")]
@@ -573,11 +591,26 @@ class Simulation:
         held = {key: float(mass[(phase == code) & active].sum())
                 for key, code in (("inside", PHASE_GAS), ("subgrid", PHASE_SUBGRID), ("foam", PHASE_FOAM))}
         vented = float(self.fields.vented_mass.numpy()[0])
+        outflow = self.fields.outflow_mass.numpy()
+        left = float(outflow[PHASE_GAS] + outflow[PHASE_SUBGRID] + outflow[PHASE_FOAM])  # through open walls
         rounding = float(self.host_state.get("gas_mass_rounding", np.zeros(1))[0])
         trapped = float(self.host_state.get("gas_mass_trapped", np.zeros(1))[0])  # air a splash closed over
-        return {**held, "vented": vented, "rounding": rounding, "trapped": trapped,
-                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + rounding - trapped,
+        return {**held, "vented": vented, "left": left, "rounding": rounding, "trapped": trapped,
+                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + left + rounding - trapped,
                 "volume": float((p.numpy("vol0") * p.numpy("J"))[(phase == PHASE_GAS) & active].sum())}
+
+    def mass_budget(self) -> dict[str, dict[str, float]]:
+        """Where the mass went, kg. "liquid": "added" (seeded and emitted), "held" (active liquid
+        particles), "left" (through open walls) and "error" = added - held - left (float rounding
+        only: 0 up to the sums' order). "gas": gas_budget() (its "left" the gas, foam and sub-grid
+        bubbles gone through open walls)."""
+        p = self.particles
+        liquid = (p.numpy("phase") == PHASE_LIQUID) & (p.numpy("active") != RETIRED)  # flying above an open top too
+        held = float(p.numpy("mass")[liquid].astype(np.float64).sum())
+        added = float(self.host_state["liquid_added"][0])
+        left = float(self.fields.outflow_mass.numpy()[PHASE_LIQUID])
+        return {"liquid": {"added": added, "held": held, "left": left, "error": added - held - left},
+                "gas": self.gas_budget()}
 
     def pressure_numpy(self) -> np.ndarray:
         """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""

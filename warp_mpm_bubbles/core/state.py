@@ -8,7 +8,7 @@ the transfers read and add to the grid in memory order; `ids` moves with the res
 puts them back in the order they were added (Simulation.advance_to does, before it returns).
 
 `GridFields` holds the MAC grid's face and cell arrays, rebuilt by every step (only `pressure`,
-the solver's warm start, and `vented_mass`, the gas ledger, carry over and are checkpointed). A
+the solver's warm start, and the ledgers `vented_mass` and `outflow_mass` carry over and are checkpointed). A
 stage that needs a grid array of its own allocates it in its constructor; gas arrays are one-cell
 placeholders until the gas stage replaces them (the core kernels take them as arguments either way).
 """
@@ -19,6 +19,7 @@ import numpy as np
 import warp as wp
 
 from .geometry import GridGeometry
+from .grid import ACTIVE
 from .threads import CACHE_LINE_FLOATS
 
 # The per-particle arrays every scene has: position (m), velocity (m/s), APIC affine matrix (1/s),
@@ -27,7 +28,7 @@ from .threads import CACHE_LINE_FLOATS
 PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vol0": float, "J": float,
                    "phase": wp.int32, "active": wp.int32, "material": wp.int32, "gas_law": wp.int32,
                    "gas_gamma": float, "ids": wp.int64}
-GRID_CHECKPOINT = ("pressure", "vented_mass")  # what a step reads from the previous one
+GRID_CHECKPOINT = ("pressure", "vented_mass", "outflow_mass")  # what a step reads from the previous one
 
 
 @wp.kernel(enable_backward=False)
@@ -38,7 +39,7 @@ def cell_keys(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), geo:
     p = wp.tid()
     order[p] = p
     xp = x[p]
-    if active[p] == 0 or not wp.isfinite(xp):
+    if active[p] != ACTIVE or not wp.isfinite(xp):
         keys[p] = cells[0] * cells[1] * cells[2]
         return
     c = (xp - geo.origin) / geo.dx
@@ -212,6 +213,7 @@ class GridFields:
         self.max_speed = wp.zeros(5, dtype=float, device=device)
         self.nonfinite = wp.zeros(1, dtype=wp.int32, device=device)  # particles p2g refused this step
         self.vented_mass = wp.zeros(1, dtype=wp.float64, device=device)  # kg of gas gone to the air
+        self.outflow_mass = wp.zeros(4, dtype=wp.float64, device=device)  # kg gone through open walls, by PHASE_*
 
     def faces(self, dtype=float) -> list:
         """One array per simulated axis' faces (three in 2D too: the w faces are never read)."""

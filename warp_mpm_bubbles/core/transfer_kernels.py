@@ -10,7 +10,7 @@ import warp as wp
 
 from .geometry import GridGeometry
 from .gas_law import gas_compressibility, gas_pressure
-from .grid import FLUID, PHASE_GAS, PHASE_LIQUID
+from .grid import ACTIVE, AIRBORNE, FLUID, LEAVING, PHASE_GAS, PHASE_LIQUID
 from .lines import Lines, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})
@@ -66,6 +66,49 @@ def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
     for a in range(dim):
         y[a] = wp.clamp(x[a], eps, domain_hi[a] - eps)
     return y
+
+
+@wp.func
+def open_wall_exit(moved: wp.vec3, geo: GridGeometry, phase: int):
+    """The `active` code of a particle moved to `moved`: ACTIVE inside the domain (or against a
+    closed wall, which clamps it); LEAVING past the face of an open wall (its mass is then booked as
+    outflow); but AIRBORNE for liquid past an open top, the wall against gravity, which it flies
+    above and falls back through (a splash). A particle past two faces leaves unless both are the top."""
+    code = int(ACTIVE)
+    for a in range(geo.dim):
+        out_lo = geo.open_lo[a] != 0 and moved[a] < 0.0
+        out_hi = geo.open_hi[a] != 0 and moved[a] > geo.domain_hi[a]
+        if out_lo or out_hi:
+            top = a == geo.up_axis and ((out_hi and geo.up_sign > 0) or (out_lo and geo.up_sign < 0))
+            if top and phase == PHASE_LIQUID and code == ACTIVE:
+                code = AIRBORNE
+            else:
+                code = LEAVING
+    return code
+
+
+@wp.func
+def fly(x: wp.vec3, v: wp.vec3, geo: GridGeometry, dt: float):
+    """One step of free fall for an AIRBORNE particle above the domain: (x, v, its new code)."""
+    vn = v + dt * geo.gravity
+    moved = x + dt * vn
+    code = open_wall_exit(moved, geo, PHASE_LIQUID)  # still above: AIRBORNE; fell back in: ACTIVE
+    xn = moved
+    if code == ACTIVE:  # back in the domain: kept inside it like any moved particle
+        xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
+        vn = wall_stopped(moved, xn, vn, geo.dim)
+    return xn, vn, code
+
+
+@wp.kernel(enable_backward=False)
+def book_outflow(active: wp.array(dtype=wp.int32), phase: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
+                 outflow: wp.array(dtype=wp.float64)):
+    """Retire the particles that crossed an open wall (active == LEAVING) and add their mass to
+    outflow[phase], kg. Launched as one serial pass on the CPU, so the sum has a fixed order."""
+    p = wp.tid()
+    if active[p] == LEAVING:
+        wp.atomic_add(outflow, phase[p], wp.float64(mass[p]))
+        active[p] = 0
 
 
 @wp.func
@@ -422,7 +465,7 @@ def _p2g_kernel(dim: int):
         origin = geo.origin
         dx = geo.dx
         p = wp.tid()
-        if active[p] == 0 or phase[p] > PHASE_GAS:
+        if active[p] != ACTIVE or phase[p] > PHASE_GAS:
             return
         vp = v[p]
         if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
@@ -550,7 +593,14 @@ def _g2p_kernel(dim: int):
         dx = geo.dx
         domain_hi = geo.domain_hi
         p = wp.tid() + first
-        if active[p] == 0 or phase[p] > PHASE_GAS:
+        if active[p] == AIRBORNE:  # above an open top: free fall, no grid
+            xf, vf, code = fly(x[p], v[p], geo, dt)
+            x[p] = xf
+            v[p] = vf
+            active[p] = code
+            wp.atomic_max(max_speed, slot, wp.length(vf))
+            return
+        if active[p] != ACTIVE or phase[p] > PHASE_GAS:
             return
         xp = clamp_to_domain(x[p], domain_hi, dx, wp.static(dim))
         s = mac_stencil(xp, geo.origin, 1.0 / dx, wp.static(dim))
@@ -563,10 +613,17 @@ def _g2p_kernel(dim: int):
         if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
             J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
         # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
+        # Through an open wall it leaves (booked and retired by book_outflow), or flies (AIRBORNE).
         moved = xp + dt * vp
         xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))
-        x[p] = xn
         vn = wall_stopped(moved, xn, vp, wp.static(dim))
+        code = open_wall_exit(moved, geo, phase[p])
+        if code == AIRBORNE:
+            xn = moved
+            vn = vp
+            Cp = wp.mat33(0.0)  # a free-falling drop moves as one
+        active[p] = code
+        x[p] = xn
         v[p] = vn
         C[p] = Cp
         wp.atomic_max(max_speed, slot, wp.length(vn))

@@ -13,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from ..core.geometry import GridGeometry
-from ..core.grid import SOLID_FREE_SLIP, SOLID_NO_SLIP
+from ..core.grid import ACTIVE, SOLID_FREE_SLIP, SOLID_NO_SLIP
 from ..core.stage import Stage
 from ..core.cells import cell_centre, unit
 from ..core.transfer_kernels import clamp_to_domain
@@ -171,7 +171,7 @@ def push_out_of_colliders(
     dim = geo.dim
     domain_hi = geo.domain_hi
     p = wp.tid()
-    if active[p] == 0:
+    if active[p] != ACTIVE:
         return
     xp = x[p]
     for _ in range(2):  # a second pass for a particle pushed from one collider into another

@@ -33,7 +33,7 @@ from ..core.stage import Stage
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
 from ..core.transfer_kernels import (
-    CELL_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, make_stencil, wall_stopped,
+    CELL_OFFSET, clamp_to_domain, grid_coord, open_wall_exit, interpolate_velocity, make_stencil, wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -113,6 +113,7 @@ def advance_foam(
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
         vp = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim) + lift * up
     moved = xp + dt * vp
+    active[p] = open_wall_exit(moved, geo, phase[p])  # LEAVING through an open wall: book_outflow retires it
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
     x[p] = xn
     v[p] = wall_stopped(moved, xn, vp, dim)  # a wall stops the motion into it, as in g2p
@@ -181,3 +182,4 @@ class FoamStage(Stage):
         sim.launch(advance_foam, p.count,
                    [*f.vel, f.liq_volume, f.types, sim.geometry, dt, self._up, self.settings.rise_speed, p.phase, p.mass, p.foam_life, p.x, p.v, p.active,
                     f.vented_mass])
+        sim.book_outflow()  # foam blown through an open wall

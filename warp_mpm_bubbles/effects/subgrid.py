@@ -48,14 +48,14 @@ import warp as wp
 from ..core.cells import cell_of
 from ..core.gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from ..core.geometry import GridGeometry
-from ..core.grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
+from ..core.grid import ACTIVE, EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
 from .subgrid_drag import (ADDED_MASS, PI, add_face_impulse, drag_impulse_per_speed, face_fluid_mass,
                            implicit_relative_speed)
 from ..core.transfer_kernels import (
-    U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, interpolate_velocity, wall_stopped,
+    U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, open_wall_exit, interpolate_velocity, wall_stopped,
 )
 
 wp.set_module_options({"enable_backward": False})
@@ -197,6 +197,7 @@ def advance_subgrid(
     vp = u_l + w
     impulse[p] = drag * w  # what the drag took from the bubble goes to the fluid next step
     moved = xp + dt * vp
+    active[p] = open_wall_exit(moved, geo, phase[p])  # LEAVING through an open wall: book_outflow retires it
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
     vp = wall_stopped(moved, xn, vp, dim)
     x[p] = xn
@@ -274,7 +275,7 @@ def push_liquid(
     """The liquid makes room for each new bubble in turn (from where the previous push left it):
     r' = (r^d + R^d)^(1/d) within `reach`, in float64, as the host did."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_LIQUID:
+    if active[p] != ACTIVE or phase[p] != PHASE_LIQUID:
         return
     xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
     moved = int(0)
@@ -378,6 +379,7 @@ class SubgridBubbleStage(Stage):
                    [*f.vel, *f.face_mass, f.types, f.phase_cells, f.ceiling, f.pressure, sim.geometry, dt, self.rho_l, self.mu, sim.scene.domain.ambient_pressure,
                     p.mass, p.vol0, p.gas_law, p.gas_gamma, p.phase, p.J, p.x, p.v, p.subgrid_impulse, p.active,
                     f.max_speed])
+        sim.book_outflow()  # bubbles carried through an open wall
         if (sim.stats.steps + 1) % self.settings.convert_every == 0:
             self.convert(sim)
 

@@ -14,7 +14,7 @@ import math
 import warp as wp
 
 from ..core.geometry import GridGeometry
-from ..core.grid import INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
+from ..core.grid import ACTIVE, INTERFACE_SHARP, PHASE_GAS, SOLID_FREE_SLIP
 from ..core.stage import Stage
 from ..core.cells import (
     block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
@@ -220,7 +220,7 @@ def count_grid_particles(x: wp.array(dtype=wp.vec3), phase: wp.array(dtype=wp.in
                          active: wp.array(dtype=wp.int32), geo: GridGeometry, count: wp.array3d(dtype=wp.int32)):
     """Liquid and gas particles per cell where they are now (after g2p moved them)."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] > PHASE_GAS or not wp.isfinite(x[p]):
+    if active[p] != ACTIVE or phase[p] > PHASE_GAS or not wp.isfinite(x[p]):
         return
     c = cell_of(clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
     wp.atomic_add(count, c[0], c[1], c[2], 1)

@@ -109,7 +109,11 @@ def main(argv=None):
     if len(runs) >= 3:
         summary["cv"] = richardson([r["cv"] for r in runs])
         summary["cd"] = richardson([r["cd"] for r in runs])
-        print(f"Cv: order {summary['cv']['order']:.2f}, extrapolated {summary['cv']['limit']:.4f} (Torricelli: 1)")
+        errors = [1.0 - r["cv"] for r in runs]
+        summary["cv_error_orders"] = [math.log2(a / b) for a, b in zip(errors, errors[1:]) if a > 0 and b > 0]
+        print("Cv's error against Torricelli (1): " + ", ".join(f"{e:.4f}" for e in errors) + "; orders "
+              + ", ".join(f"{q:.2f}" for q in summary["cv_error_orders"]))
+        print(f"Cv: finest three's order {summary['cv']['order']:.2f}, extrapolated {summary['cv']['limit']:.4f}")
         print(f"Cd: order {summary['cd']['order']:.2f}, extrapolated {summary['cd']['limit']:.4f}")
     out = pathlib.Path(__file__).resolve().parent / "results" / "torricelli.json"
     out.write_text(json.dumps(summary, indent=1) + "\n")

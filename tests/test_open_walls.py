@@ -23,18 +23,18 @@ def torricelli():
 
 
 def test_a_draining_tank_jets_at_torricelli_speed_converging(torricelli):
-    # Measured (2026-12-07): Cv 0.8226 / 0.9203 / 0.9637 at 2 / 4 / 8 cells across the slot, order
-    # 1.17, extrapolated 0.9984 (16 cells: 0.9899). The bound on the extrapolation, 1%, is what a 3%
-    # error in gravity (1.5% in Cv) breaks; the order's band is wide (0.7-2.5) since three levels
-    # give one estimate of it.
-    bench, runs = torricelli
+    # Measured (2026-12-07): Cv 0.8226 / 0.9203 / 0.9637 at 2 / 4 / 8 cells across the slot; the
+    # errors against Torricelli (Cv = 1) shrink at order 1.15 and 1.15 (16 cells: 0.9899, order 1.85;
+    # python benchmarks/torricelli.py). The finest Cv is deterministic on the CPU: pinned to 0.8%
+    # either side, which a 3% error in gravity (1.4% in Cv) leaves.
+    _, runs = torricelli
     cv = [r["cv"] for r in runs]
     print("Cv", [f"{c:.4f}" for c in cv], "Cd", [f"{r['cd']:.4f}" for r in runs])
-    errors = [abs(1.0 - c) for c in cv]
-    assert errors[0] > errors[1] > errors[2], cv
-    fit = bench.richardson(cv)
-    assert 0.7 < fit["order"] < 2.5, fit
-    assert abs(fit["limit"] - 1.0) < 0.01, fit
+    errors = [1.0 - c for c in cv]
+    assert all(e > 0.0 for e in errors), cv  # the jet never outruns Torricelli
+    orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+    assert all(0.8 < q < 2.5 for q in orders), (cv, orders)
+    assert 0.955 < cv[2] < 0.972, cv
     # The discharge coefficient converges too (0.7045 / 0.7958 / 0.8267, differences shrinking by
     # 3x; 16 cells: 0.8294): between a thin plate's 0.61 and a short tube's 0.8, as the plate is.
     cd = [r["cd"] for r in runs]

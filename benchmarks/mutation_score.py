@@ -75,8 +75,7 @@ _GAS_RATE_LIMIT = "limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))"
 _POCKET = "large = sizes[inverse] >= POCKET_CELLS"
 _P2G_GAS = ("pg = gas_pressure(law[p], J[p], gamma[p], p_atm)\n"
             "    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)")
-_G2P_MOVE = ("moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))\n"
-             "        x[p] = xn\n        vn = wall_stopped(moved, xn, vp, wp.static(dim))")  # g2p's, not foam's
+_G2P_MOVE = "moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))"  # g2p's, not foam's
 MUTATIONS = [
     # --- transfers
     ("apic_dropped_p2g", TK, "wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm)", "wp.vec2(wm * vel, wm)", [VORTEX, VISCOSITY]),

@@ -61,6 +61,8 @@ WS = "tests/test_walls_and_sources.py"
 CAVITY_FILE = "tests/test_cavity.py"
 CAVITY = CAVITY_FILE + "::test_a_near_vacuum_cavity_collapses_on_the_cylindrical_rayleigh_time"
 TANK = WS + "::test_resting_tank_pressure_has_slope_rho_g_and_its_zero_at_the_surface"
+POCKET = "tests/test_voids.py::test_a_void_of_pocket_cells_is_trapped_air_and_one_cell_less_is_liquid"
+MG_PINS = "tests/test_pressure.py::test_multigrid_iteration_counts_are_pinned"
 
 # (id, module it lives in today, exact old snippet, new snippet, tests). The issue's table rows are
 # curvature_3d_no_z, divergence_z_x0.95, theta_half, kappa_x0.9, gamma_x1.1, volume_correction_x2,
@@ -68,10 +70,12 @@ TANK = WS + "::test_resting_tank_pressure_has_slope_rho_g_and_its_zero_at_the_su
 # velocity_gain_0.2pct.
 TK, GK, TE = "core/transfer_kernels.py", "core/grid_kernels.py", "physics/tension.py"
 SIM = "core/simulation.py"
+_SMOOTH = "x[i, j, k] = (b[i, j, k] + L.scale * n) / d"  # the red-black Gauss-Seidel update
+_GAS_RATE_LIMIT = "limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))"
+_POCKET = "large = sizes[inverse] >= POCKET_CELLS"
 _P2G_GAS = ("pg = gas_pressure(law[p], J[p], gamma[p], p_atm)\n"
             "    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)")
-_G2P_MOVE = ("moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))\n"
-             "        x[p] = xn\n        vn = wall_stopped(moved, xn, vp, wp.static(dim))")  # g2p's, not foam's
+_G2P_MOVE = "moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))"  # g2p's, not foam's
 MUTATIONS = [
     # --- transfers
     ("apic_dropped_p2g", TK, "wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm)", "wp.vec2(wm * vel, wm)", [VORTEX, VISCOSITY]),
@@ -122,21 +126,28 @@ MUTATIONS = [
      "vel[i, j, k] = vel[i, j, k] - 0.97 * dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx", [DIV3D, HYDROSTATIC]),
     # --- interface (sharp liquid-gas faces, Wood mixture)
     ("theta_half", GK, "theta = wp.clamp(psi_l / (psi_l - psi_g), 0.0, 1.0)", "theta = 0.5", [LAYERED]),
-    ("wood_mixture_dropped", GK, "kappa = kappa * vg / (vg + vl)", "kappa = kappa", [KAPPA, MINNAERT_2D]),
+    ("wood_mixture_dropped", "core/gas_law.py", "kappa = kappa * vg / cell_volume", "kappa = kappa", [KAPPA, MINNAERT_2D]),
     ("system_kappa_x0.97", GK, "kappa = kv / vg", "kappa = 0.97 * kv / vg", [KAPPA, MINNAERT_2D]),
     # --- pressure solve
     ("cg_step_x0.97", "core/pressure.py", "x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]",
      "x[i, j, k] = x[i, j, k] + 0.97 * alpha * d[i, j, k]", [HYDROSTATIC, "tests/test_pressure.py"]),
-    ("operator_offdiagonal_x1.03", "core/pressure.py", "Ap = diag[i, j, k] * p[i, j, k] - s * inv_dx2",
-     "Ap = diag[i, j, k] * p[i, j, k] - 1.03 * s * inv_dx2", ["tests/test_pressure.py", HYDROSTATIC]),
-    ("multigrid_smoother_damped", "core/multigrid.py",
-     "x[i, j, k] = (b[i, j, k] + L.scale * neighbour_sum(L, x, i, j, k)) / d",
-     "x[i, j, k] = (b[i, j, k] + 0.5 * L.scale * neighbour_sum(L, x, i, j, k)) / d", ["tests/test_pressure.py"]),
+    ("operator_offdiagonal_x1.03", "core/pressure.py", "Ap = diag[i, j, k] * p[i, j, k] - n * inv_dx2",
+     "Ap = diag[i, j, k] * p[i, j, k] - 1.03 * n * inv_dx2", ["tests/test_pressure.py", HYDROSTATIC]),
+    ("multigrid_smoother_damped", "core/multigrid.py", _SMOOTH, "x[i, j, k] = (b[i, j, k] + 0.5 * L.scale * n) / d",
+     ["tests/test_pressure.py"]),
+    # a relaxed (or over-relaxed) Gauss-Seidel: the same answer, in more (or fewer) iterations
+    ("multigrid_smoother_weight_0.9", "core/multigrid.py", _SMOOTH,
+     "x[i, j, k] = 0.9 * (b[i, j, k] + L.scale * n) / d + 0.1 * x[i, j, k]", [MG_PINS]),
+    ("multigrid_smoother_weight_1.03", "core/multigrid.py", _SMOOTH,
+     "x[i, j, k] = 1.03 * (b[i, j, k] + L.scale * n) / d - 0.03 * x[i, j, k]", [MG_PINS]),
     ("multigrid_prolongation_x0.5", "core/multigrid.py", "x[i, j, k] = x[i, j, k] + x_coarse[i // 2, j // 2, k // 2]",
      "x[i, j, k] = x[i, j, k] + 0.5 * x_coarse[i // 2, j // 2, k // 2]", ["tests/test_pressure.py"]),
+    # --- voids: a region of POCKET_CELLS cells is trapped air, one cell less is liquid
+    ("void_pocket_threshold_exclusive", "core/voids.py", _POCKET, _POCKET.replace(">=", ">"), [POCKET]),
+    ("void_pocket_threshold_minus_one", "core/voids.py", _POCKET, _POCKET + " - 1", [POCKET]),
     # --- surface tension
-    ("curvature_3d_no_z", TE, "    for a in range(dim):\n        ea = unit(a)",
-     "    for a in range(wp.min(dim, 2)):\n        ea = unit(a)", [DROP3D, BUBBLE3D]),
+    ("curvature_3d_no_z", "physics/curvature.py", "        if a < dim:\n            ea = unit(a)",
+     "        if a < wp.min(dim, 2):\n            ea = unit(a)", [DROP3D, BUBBLE3D]),
     ("sigma_x0.97", TE, "orient * sigma * kappa / dx", "orient * 0.97 * sigma * kappa / dx", [DROP3D, BUBBLE3D, TENSION]),
     ("sigma_x1.03", TE, "orient * sigma * kappa / dx", "orient * 1.03 * sigma * kappa / dx", [DROP3D, BUBBLE3D, TENSION]),
     ("curvature_interpolation_swapped", TE,
@@ -157,6 +168,10 @@ MUTATIONS = [
      "        v_lo = 2.0 * v_lo - 0.5 * v_hi\n", [VISCOSITY]),
     ("viscous_dt_limit_x2", "physics/viscosity.py", "return 2.0 / rate if rate > 0.0",
      "return 4.0 / rate if rate > 0.0", [STEP, VISCOSITY]),
+    ("gas_expansion_limit_x1.1", "physics/gas.py", _GAS_RATE_LIMIT,
+     _GAS_RATE_LIMIT.replace("GAS_EXPANSION_SHARE / rate", "1.1 * GAS_EXPANSION_SHARE / rate"), [STEP]),
+    ("gas_expansion_limit_x1.03", "physics/gas.py", _GAS_RATE_LIMIT,
+     _GAS_RATE_LIMIT.replace("GAS_EXPANSION_SHARE / rate", "1.03 * GAS_EXPANSION_SHARE / rate"), [STEP]),
     ("cfl_x2", SIM, '"cfl": s.cfl * self.grid.dx / speed', '"cfl": 2.0 * s.cfl * self.grid.dx / speed',
      [STEP, "tests/test_solver.py::test_time_steps_land_on_frames_and_respect_cfl"]),
     # --- effects

@@ -321,3 +321,42 @@ def test_a_gap_beside_an_air_bubble_is_the_bubbles_and_closes(tmp_path):
             assert void_cells(types, sim.grid.ghost, sim.up) == gaps[0]
     assert gaps[-1] == 0 and max(gaps[3:]) == 0, gaps
     assert "bubble gaps" in _voids_line(sim) and not sim.voids.by_frame
+
+
+# ------------------------------------------------------------------ the trapped-air threshold
+def test_a_void_of_pocket_cells_is_trapped_air_and_one_cell_less_is_liquid(tmp_path):
+    # The threshold itself (voids.POCKET_CELLS, "a void region this large is air"): two voids are cut
+    # into the water of a gas scene, far from its bubble and from each other, one of exactly
+    # POCKET_CELLS cells and one of POCKET_CELLS - 1, and the pass is run on them. The first must be
+    # seeded with gas (ppc particles a cell, in its cells), the second made a liquid cell, each by its
+    # own rule: a threshold off by one either way (> for >=, or >= POCKET_CELLS - 1) fails.
+    from warp_mpm_bubbles.core.voids import POCKET_CELLS
+
+    sim = Simulation(pool(tmp_path, gas=True), "cpu")
+    sim.step(sim.stable_dt())  # cells classified; the bubble (x 0.077-0.093 m, y 0.052-0.068 m) is gas
+    g, f = sim.grid, sim.fields
+    assert sim.voids.pockets == 0 and sim.voids.last_voids == 0
+    row = int((0.022 - g.origin[1]) / g.dx)  # 8 cells under the water surface, 3 above the floor
+    first = lambda x: int((x - g.origin[0]) / g.dx)  # noqa: E731  (the cell holding x)
+    pocket = np.array([(first(0.015) + n, row, 0) for n in range(POCKET_CELLS)])
+    gap = np.array([(first(0.045) + n, row, 0) for n in range(POCKET_CELLS - 1)])
+    types = f.types.numpy()
+    assert np.all(types[tuple(np.concatenate([pocket, gap]).T)] == FLUID)
+    assert np.all(f.phase_cells.numpy()[tuple(np.concatenate([pocket, gap]).T)] == PHASE_LIQUID)
+    types[tuple(np.concatenate([pocket, gap]).T)] = EMPTY
+    f.types.assign(types)
+    before = sim.particles_numpy()
+    sim.voids.apply(sim.stats.dt_history[-1])
+
+    assert sim.voids.last_voids == 2 * POCKET_CELLS - 1
+    assert sim.voids.pockets == 1 and sim.voids.seeded
+    p = sim.particles_numpy()
+    new = ~np.isin(p["ids"], before["ids"])
+    ppc = sim.scene.solver.particles_per_cell
+    assert new.sum() == POCKET_CELLS * ppc and np.all(p["phase"][new] == PHASE_GAS)
+    cells = np.floor((p["positions"][new] - np.asarray(g.origin)) / g.dx).astype(int)
+    cells[:, 2] = 0
+    assert {tuple(c) for c in cells} == {tuple(c) for c in pocket}
+    types, phases = f.types.numpy(), f.phase_cells.numpy()
+    assert np.all(types[tuple(gap.T)] == FLUID) and np.all(phases[tuple(gap.T)] == PHASE_LIQUID)
+    assert np.all(types[tuple(pocket.T)] == EMPTY)  # left to the step's second splat, which sees its gas

@@ -51,6 +51,22 @@ def test_run_writes_every_frame_and_a_summary(tmp_path, capsys):
     err = capsys.readouterr().err
     for stage in ("p2g", "grid", "pressure", "extend", "g2p", "output", "pressure CG", "particles", "steps"):
         assert stage in err
+    summary = err[err.index("small: 5 frames"):]
+    assert summary.strip() in (tmp_path / "override_frames" / "run.log").read_text()  # kept beside the frames
+
+
+def test_an_over_long_output_name_is_refused_naming_the_field(tmp_path, capsys):
+    """NAME_MAX is 255 bytes here; the frame files add up to 32 to the name (a frame temp)."""
+    scene = small_scene(tmp_path)
+    long_name = tmp_path / ("a" * 300 + ".usdc")
+    assert main(["run", str(scene), "--stage-path", str(long_name), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --stage-path ") and "shorten the name before its suffix to at most" in err
+    scene.write_text(scene.read_text().replace("small.usdc", "b" * 240 + ".usdc"))  # fits alone, not with frames
+    assert main(["check", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert "[output].path" in err and "at most 223 bytes" in err and "internal error" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml"]  # nothing written
 
 
 def run_and_kill(scene, out, min_frames=3):

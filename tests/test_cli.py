@@ -196,3 +196,24 @@ def test_a_bad_thread_count_is_refused_before_any_output(tmp_path, capsys, monke
         err = capsys.readouterr().err
         assert "WARP_MPM_CPU_THREADS" in err and says in err and "Traceback" not in err
         assert not list(tmp_path.glob("*.usd*"))
+
+
+def test_warp_starts_without_its_native_noise_but_keeps_its_warnings(monkeypatch, capfd):
+    """The CUDA driver warning comes from Warp's native library, written straight to descriptor 2
+    during wp.init(): silenced unless --verbose; a warning from Warp's Python side still shows."""
+    import warp as wp
+    from warp._src import logger
+
+    from warp_mpm_bubbles.cli import start_warp
+
+    def init():
+        os.write(2, b"Warp CUDA warning: native noise\n")
+        logger.log_warning("a warning worth seeing")
+
+    monkeypatch.setattr(wp, "init", init)
+    monkeypatch.setattr(wp.config, "log_level", wp.config.log_level)  # start_warp sets it: put it back after
+    start_warp()
+    err = capfd.readouterr().err
+    assert "native noise" not in err and "a warning worth seeing" in err
+    start_warp(verbose=True)
+    assert "native noise" in capfd.readouterr().err

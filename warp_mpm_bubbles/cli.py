@@ -10,6 +10,7 @@ WARP_MPM_BUBBLES_DEBUG=1 prints the traceback); 130 interrupted. A closed stdout
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import sys
 import traceback
@@ -121,7 +122,8 @@ def start_warp(verbose: bool = False, quiet: bool = False) -> None:
     """Import and initialise Warp (deferred: `check` and bad scenes never start it), showing its own
     messages only when verbose: its banner and "Module ... load took ... ms" lines (Warp's log
     level; quiet keeps only its errors) and the CUDA driver warning, which Warp's native library
-    prints to the stderr descriptor while it initialises, so that descriptor is silenced then."""
+    prints straight to the stderr descriptor while it initialises: that descriptor is silenced
+    then, while what Warp's Python side writes (a warning its log level lets through) is kept."""
     import warp as wp
 
     wp.config.log_level = wp.LOG_INFO if verbose else (wp.LOG_ERROR if quiet else wp.LOG_WARNING)
@@ -134,6 +136,7 @@ def start_warp(verbose: bool = False, quiet: bool = False) -> None:
     except OSError:  # no stderr descriptor at all: nothing to silence
         wp.init()
         return
+    stream, sys.stderr = sys.stderr, io.StringIO()
     try:
         os.dup2(devnull, 2)
         wp.init()  # raises, with its message, if Warp cannot start
@@ -141,6 +144,8 @@ def start_warp(verbose: bool = False, quiet: bool = False) -> None:
         os.dup2(saved, 2)
         os.close(saved)
         os.close(devnull)
+        kept, sys.stderr = sys.stderr.getvalue(), stream
+        sys.stderr.write(kept)
 
 
 def _run(scene, args) -> int:

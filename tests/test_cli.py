@@ -51,6 +51,22 @@ def test_run_writes_every_frame_and_a_summary(tmp_path, capsys):
     err = capsys.readouterr().err
     for stage in ("p2g", "grid", "pressure", "extend", "g2p", "output", "pressure CG", "particles", "steps"):
         assert stage in err
+    summary = err[err.index("small: 5 frames"):]
+    assert summary.strip() in (tmp_path / "override_frames" / "run.log").read_text()  # kept beside the frames
+
+
+def test_an_over_long_output_name_is_refused_naming_the_field(tmp_path, capsys):
+    """NAME_MAX is 255 bytes here; the frame files add up to 32 to the name (a frame temp)."""
+    scene = small_scene(tmp_path)
+    long_name = tmp_path / ("a" * 300 + ".usdc")
+    assert main(["run", str(scene), "--stage-path", str(long_name), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --stage-path ") and "shorten the name before its suffix to at most" in err
+    scene.write_text(scene.read_text().replace("small.usdc", "b" * 240 + ".usdc"))  # fits alone, not with frames
+    assert main(["check", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert "[output].path" in err and "at most 223 bytes" in err and "internal error" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml"]  # nothing written
 
 
 def run_and_kill(scene, out, min_frames=3):
@@ -180,3 +196,24 @@ def test_a_bad_thread_count_is_refused_before_any_output(tmp_path, capsys, monke
         err = capsys.readouterr().err
         assert "WARP_MPM_CPU_THREADS" in err and says in err and "Traceback" not in err
         assert not list(tmp_path.glob("*.usd*"))
+
+
+def test_warp_starts_without_its_native_noise_but_keeps_its_warnings(monkeypatch, capfd):
+    """The CUDA driver warning comes from Warp's native library, written straight to descriptor 2
+    during wp.init(): silenced unless --verbose; a warning from Warp's Python side still shows."""
+    import warp as wp
+    from warp._src import logger
+
+    from warp_mpm_bubbles.cli import start_warp
+
+    def init():
+        os.write(2, b"Warp CUDA warning: native noise\n")
+        logger.log_warning("a warning worth seeing")
+
+    monkeypatch.setattr(wp, "init", init)
+    monkeypatch.setattr(wp.config, "log_level", wp.config.log_level)  # start_warp sets it: put it back after
+    start_warp()
+    err = capfd.readouterr().err
+    assert "native noise" not in err and "a warning worth seeing" in err
+    start_warp(verbose=True)
+    assert "native noise" in capfd.readouterr().err

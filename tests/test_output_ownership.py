@@ -49,7 +49,8 @@ def assert_one_run(stage, frames):
     r = read_frames(stage)
     assert (r["start"], r["end"]) == (0, frames) and sorted(r["frames"]) == list(range(frames + 1))
     assert sorted(p.name for p in fdir.iterdir()) == sorted(
-        [MARKER, "checkpoint.npz", "manifest.usdc"] + [p.name for p in layers])  # no temp left
+        [MARKER, "checkpoint.npz", "checkpoint.previous.npz", "manifest.usdc", "run.log"]
+        + [p.name for p in layers])  # no temp left
     assert not lock_path(stage).exists()
     return top
 

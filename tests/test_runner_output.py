@@ -31,3 +31,14 @@ def test_written_frames_hold_the_simulations_particles(tmp_path):
     np.testing.assert_allclose(last["positions"], p["positions"])
     np.testing.assert_allclose(last["velocities"], p["velocities"])
     assert np.abs(p["velocities"]).max() > 0.0  # the bubble moved things: velocities are not trivially zero
+
+
+def test_the_eta_after_a_resume_counts_only_the_frames_this_process_ran(monkeypatch):
+    """Resumed after frame 24 of 30, one frame in 1 s: 5 frames left take 5 s, not 5/25 s."""
+    from warp_mpm_bubbles.io import runner
+
+    clock = iter([100.0, 101.0])
+    monkeypatch.setattr(runner.time, "perf_counter", lambda: next(clock))
+    stream = io.StringIO()
+    runner.ProgressBar(30, stream=stream, first=24).update(25, 0.8, 1000)
+    assert "elapsed 1s ETA 5s" in stream.getvalue()

@@ -1,14 +1,16 @@
 """Command line: `warp-mpm-bubbles run SCENE.toml`, `check SCENE.toml`, `preview OUT.usdc`, `blender OUT.usdc`.
 
 Exit codes: 0 done; 1 the simulation stopped (a NaN, a frame needing too many steps); 2 bad input
-(a scene, an argument, a device or memory this machine lacks); 3 a bug (an unexpected exception:
-one line saying so and where to report it; WARP_MPM_BUBBLES_DEBUG=1 prints the traceback);
-130 interrupted.
+(a scene, an argument, a device or memory this machine lacks, a --resume that would mix settings);
+3 a bug (an unexpected exception: one line saying so and where to report it;
+WARP_MPM_BUBBLES_DEBUG=1 prints the traceback); 130 interrupted. A closed stdout or stderr
+(`| head`) changes neither: `run` also writes its summary or error to <stem>_frames/run.log.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import sys
 import traceback
@@ -16,6 +18,8 @@ import traceback
 from .scene.limits import MAX_FRAMES, check_colliders_leave_fluid, check_memory
 from .scene.quality import PRESETS
 from .scene.model import SceneError, load_scene
+from .io.paths import output_path_problem
+from .io.streams import guarded_std_streams
 from .io.wedge import add_wedge_arguments
 
 DEBUG_ENV = "WARP_MPM_BUBBLES_DEBUG"
@@ -50,7 +54,11 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
                         help="quality preset; replaces the scene's particles_per_cell, cfl, cg_tolerance and refine "
                              "(README: error and cost per preset)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    talk = parser.add_mutually_exclusive_group()
+    talk.add_argument("--quiet", action="store_true",
+                      help="print nothing but errors (the summary still goes to <stem>_frames/run.log)")
+    talk.add_argument("--verbose", action="store_true",
+                      help="also show Warp's own messages: its banner, the CUDA driver warning, each module load")
     parser.add_argument("--resume", action="store_true",
                         help="continue a killed run from its last checkpoint, keeping its frames")
     parser.add_argument("--overwrite", action="store_true",
@@ -66,6 +74,9 @@ def scene_with_overrides(path, args) -> "object":
         scene = scene.with_quality(args.quality)
     if getattr(args, "surface", False):
         scene.output.surface = True
+    too_long = output_path_problem(args.stage_path) if args.stage_path is not None else None
+    if too_long:  # named as the user gave it, not as the [output].path it replaces
+        raise SceneError(f"--stage-path {args.stage_path!r}: {too_long}", "--stage-path", args.stage_path, too_long)
     if args.num_frames is not None or args.stage_path is not None:
         scene = scene.replace_output(path=args.stage_path, frames=args.num_frames)
     return scene.validate()
@@ -75,7 +86,6 @@ def run_example(scene_path, description: str, argv=None) -> int:
     """Body of every example script: the shared flags, then run the scene next to the script."""
     parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_run_overrides(parser)
-    args = parser.parse_args(argv)
 
     def body():
         try:
@@ -85,7 +95,9 @@ def run_example(scene_path, description: str, argv=None) -> int:
             return 2
         return _run(scene, args)
 
-    return guarded(body)
+    with guarded_std_streams():
+        args = parser.parse_args(argv)
+        return guarded(body)
 
 
 def guarded(body) -> int:
@@ -106,10 +118,38 @@ def guarded(body) -> int:
         return 3
 
 
-def _run(scene, args) -> int:
-    import warp as wp  # deferred: `check` and bad scenes never start Warp
+def start_warp(verbose: bool = False, quiet: bool = False) -> None:
+    """Import and initialise Warp (deferred: `check` and bad scenes never start it), showing its own
+    messages only when verbose: its banner and "Module ... load took ... ms" lines (Warp's log
+    level; quiet keeps only its errors) and the CUDA driver warning, which Warp's native library
+    prints straight to the stderr descriptor while it initialises: that descriptor is silenced
+    then, while what Warp's Python side writes (a warning its log level lets through) is kept."""
+    import warp as wp
 
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_INFO if verbose else (wp.LOG_ERROR if quiet else wp.LOG_WARNING)
+    if verbose:
+        wp.init()
+        return
+    sys.stderr.flush()
+    try:
+        saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    except OSError:  # no stderr descriptor at all: nothing to silence
+        wp.init()
+        return
+    stream, sys.stderr = sys.stderr, io.StringIO()
+    try:
+        os.dup2(devnull, 2)
+        wp.init()  # raises, with its message, if Warp cannot start
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+        kept, sys.stderr = sys.stderr.getvalue(), stream
+        sys.stderr.write(kept)
+
+
+def _run(scene, args) -> int:
+    start_warp(verbose=getattr(args, "verbose", False), quiet=args.quiet)
     from .io.runner import run_scene
     from .core.simulation import SimulationError
 
@@ -142,8 +182,9 @@ def main(argv=None) -> int:
     _add_blender_parser(sub)
     wedge_p = sub.add_parser("wedge", help="run variations of a scene (a wedge) as Dask tasks, one output per member")
     add_wedge_arguments(wedge_p)
-    args = parser.parse_args(argv)
-    return guarded(lambda: _main(args))
+    with guarded_std_streams():  # `--help | head` too
+        args = parser.parse_args(argv)
+        return guarded(lambda: _main(args))
 
 
 def _main(args) -> int:
@@ -209,9 +250,7 @@ def _check(path, device=None) -> int:
 
     scene = load_scene(path).validate()
     if device is not None:  # the GPU's memory too; Warp starts only for this
-        import warp as wp
-
-        wp.config.quiet = True
+        start_warp()
         from .core.simulation import SimulationError
         from .io.devices import check_memory as check_device_memory
 

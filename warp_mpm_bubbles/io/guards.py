@@ -52,8 +52,11 @@ def frame_step_guard(sim, max_steps_per_frame: int | None = None, remaining: flo
     frame_dt = 1.0 / sim.scene.output.fps if remaining is None else remaining
     steps = frame_dt / dt if dt > 0.0 else math.inf
     if not steps <= max_steps_per_frame:
-        raise FrameTooLongError(f"frame {sim.frame + 1}: " + steps_message(steps, name, dt, frame_dt,
-                                                                           max_steps_per_frame), name, steps)
+        # Simulation.advance_frame counts a frame before stepping it: inside the frame's step loop
+        # sim.frame is the frame being computed, before it the last one finished.
+        computing = sim.frame if remaining is not None else sim.frame + 1
+        raise FrameTooLongError(f"frame {computing}: " + steps_message(steps, name, dt, frame_dt,
+                                                                       max_steps_per_frame), name, steps)
     return steps
 
 

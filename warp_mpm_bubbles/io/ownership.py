@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from ..core.simulation import SimulationError
+from .streams import RUN_LOG
 
 MARKER = ".warp_mpm_bubbles"
 LAYER_KEY = "warp_mpm_bubbles"  # customLayerData key of the top layer and of every frame layer
@@ -72,8 +73,8 @@ def temp_path(path: Path) -> Path:
 
 
 def is_own_file(name: str, stem: str) -> bool:
-    """Names the project writes in <stem>_frames/: frame layers, manifest, checkpoint, marker, temps."""
-    return (name in (MARKER, "manifest.usdc", "manifest.usda", "checkpoint.npz")
+    """Names the project writes in <stem>_frames/: frame layers, manifest, checkpoints, run log, marker, temps."""
+    return (name in (MARKER, "manifest.usdc", "manifest.usda", "checkpoint.npz", "checkpoint.previous.npz", RUN_LOG)
             or re.fullmatch(re.escape(stem) + r"\.\d{6,}\.(usdc|usda)", name) is not None
             or _TEMP.fullmatch(name) is not None)
 

@@ -11,12 +11,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
+from .checkpoint import checkpoint_path, load_checkpoint, resumable_checkpoint, save_checkpoint
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
 from .devices import check_device, check_memory
 from .guards import Heartbeat, check_fluid_left, frame_step_guard
-from .ownership import OutputClaim, write_failed
+from .ownership import OutputClaim, OutputError, frames_dir, write_failed
+from .streams import RunLog, now, safe_stream
 from .usd_colliders import write_colliders
 from .usd_materials import dress_stage
 from .surface import builder_for, liquid_surface
@@ -32,17 +33,19 @@ class RunResult:
 
 
 class ProgressBar:
-    """One line redrawn in place on a terminal; on a log (CI, a file) a line every 10% of the run."""
+    """One line redrawn in place on a terminal; on a log (CI, a file) a line every 10% of the run.
+    The ETA is measured over the frames this process ran: a resumed run starts counting at `first`."""
 
-    def __init__(self, total: int, stream=None, width: int = 28):
-        self.total, self.stream, self.width = total, stream or sys.stderr, width
+    def __init__(self, total: int, stream=None, width: int = 28, first: int = 0):
+        self.total, self.stream, self.width, self.first = total, stream or sys.stderr, width, first
         self.start = time.perf_counter()
         self.tty = self.stream.isatty()
         self._last_decile = -1
 
     def update(self, done: int, sim_time: float, steps: int):
         elapsed = time.perf_counter() - self.start
-        eta = elapsed / done * (self.total - done) if done else 0.0
+        ran = done - self.first
+        eta = elapsed / ran * (self.total - done) if ran > 0 else 0.0
         filled = int(self.width * done / self.total)
         line = (f"frame {done:>4}/{self.total} [{'#' * filled}{'.' * (self.width - filled)}] "
                 f"t={sim_time:.3f}s steps={steps} elapsed {_clock(elapsed)} ETA {_clock(eta)}")
@@ -67,45 +70,63 @@ def run_scene(scene, *, device=None, progress: bool = True, log=None, resume: bo
     existing one is replaced only with overwrite=True, which deletes only files this project
     wrote; both are checked before any simulation work (io/ownership.py), and then the device
     and the memory the scene needs (io/devices.py). After every frame a checkpoint is saved beside
-    the frames; resume=True continues from it (a killed run), keeping the frames already written.
-    A failed write (a full disk) raises OutputWriteError, keeping the finished frames; a frame
-    that would need more than [solver].max_steps_per_frame steps stops before it starts
-    (io/guards.py). `on_frame(sim)` is called after each frame is written, frame 0 included.
-    Progress, a heartbeat every 30 s on a log, and the closing summary go to `log` (default: the
-    sys.stderr of the moment).
+    the frames; resume=True continues from it (a killed run), keeping the frames already written,
+    and is refused (ResumeRefused, before any work) when any setting but the frame count changed
+    or the checkpoint is damaged (io/checkpoint.py). A failed write (a full disk) raises
+    OutputWriteError, keeping the finished frames; a frame that would need more than
+    [solver].max_steps_per_frame steps stops before it starts (io/guards.py). `on_frame(sim)` is
+    called after each frame is written, frame 0 included. Progress, a heartbeat every 30 s on a
+    log, and the closing summary go to `log` (default: the sys.stderr of the moment), which may
+    close at any time without stopping the run; the summary, or the error that stopped the run,
+    also goes to <stem>_frames/run.log (io/streams.py).
     """
-    log = log or sys.stderr
+    log = safe_stream(log or sys.stderr)
     start = time.perf_counter()
     scene = scene.validate()  # the memory estimate reads the filled-in defaults
     out = scene.output
-    checkpoint = checkpoint_path(out.path)
     with OutputClaim(out.path, overwrite=overwrite, resume=resume, log=log) as claim:
-        if resume and not checkpoint.exists():
-            raise SimulationError(f"nothing to resume: no checkpoint at {checkpoint}; run without --resume")
+        resume_from = resumable_checkpoint(scene, out.path) if resume else None  # refused before any work
         dev = check_device(device)
         check_memory(scene, dev)
         sim = Simulation(scene, device=dev)
         check_fluid_left(sim)
         resume_after = None
-        if resume:
-            load_checkpoint(sim, checkpoint)
+        if resume_from is not None:
+            load_checkpoint(sim, resume_from)
             resume_after = sim.frame
             if progress:
                 log.write(f"resuming {scene.name} after frame {sim.frame} (t = {sim.time:.3f} s)\n")
-        _frame_loop(sim, claim, resume_after, log if progress else None, on_frame)
-    result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
+        run_log = RunLog(frames_dir(out.path), ready=lambda: claim.prepared)  # nothing before the output is ours
+        try:
+            _frame_loop(sim, claim, resume_after, log if progress else None, on_frame, run_log)
+        except BaseException as err:
+            run_log.write(_stopped(err))
+            raise
+        result = RunResult(sim, str(out.path), out.frames + 1, time.perf_counter() - start)
+        text = summary(result)
+        run_log.write(text)
     if progress:
-        log.write(summary(result) + "\n")
+        log.write(text + "\n")
     return result
 
 
-def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame) -> None:
-    """Write frames until scene.output.frames; a failed write becomes OutputWriteError."""
+def _stopped(err: BaseException) -> str:
+    """The run log's line for what stopped a run, as the command line words it."""
+    if isinstance(err, KeyboardInterrupt):
+        return f"{now()} interrupted; the finished frames are kept: --resume continues the run"
+    if isinstance(err, SimulationError):
+        return f"{now()} error: {err}"
+    return f"{now()} internal error (a bug in warp_mpm_bubbles): {type(err).__name__}: {err}"
+
+
+def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame, run_log) -> None:
+    """Write frames until scene.output.frames; a failed write becomes OutputWriteError, and an error
+    that stops the simulation gets the frame it was computing and the frames kept."""
     scene, out = sim.scene, sim.scene.output
     checkpoint = checkpoint_path(out.path)
     materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
     looks = [(m.name, m.kind, tuple(m.color)) for m in scene.materials.values()]
-    bar = ProgressBar(out.frames, stream=log) if log else None
+    bar = ProgressBar(out.frames, stream=log, first=resume_after or 0) if log else None
     beat, started = Heartbeat(log) if log else None, time.perf_counter()
 
     def decorate(stage):
@@ -129,6 +150,7 @@ def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame) -> None:
         writer = StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
                              format=out.format, up_axis=out.up_axis, resume_after=resume_after,
                              decorate=decorate, claim=claim, surface=out.surface)
+        run_log.write(_started(sim, claim, resume_after))
         builder = builder_for(sim, out.surface_resolution, out.surface_smoothing) if out.surface else None
         with writer:
             if resume_after is None:
@@ -144,6 +166,32 @@ def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame) -> None:
             log.write("\n")
         kept = writer.last_frame if writer else resume_after  # a resumed output keeps its frames
         raise write_failed(err, out.path, kept, saved) from err
+    except SimulationError as err:
+        if bar and bar.tty:
+            log.write("\n")
+        if not isinstance(err, OutputError):  # a write error says what it kept
+            _add_frames(err, sim, writer.last_frame if writer else resume_after)
+        raise
+
+
+def _started(sim: Simulation, claim, resume_after) -> str:
+    out = sim.scene.output
+    how = "started" if resume_after is None else f"resumed after frame {resume_after}"
+    return (f"{now()} run {claim.run_id} {how}: {sim.scene.name} ({sim.scene.source}), frames to {out.frames} "
+            f"at {out.fps:g} fps, device {sim.device}")
+
+
+def _add_frames(err: SimulationError, sim: Simulation, last_written) -> None:
+    """Append to err's message the frame being computed and the frames written and kept.
+    advance_frame counts the frame before stepping it, and a frame that did not finish is not
+    written: so the frame being computed is the one after the last written."""
+    computing = 0 if last_written is None else last_written + 1
+    out = sim.scene.output
+    kept = "no frame was written" if last_written is None else \
+        (f"frame 0 is written and kept in {out.path}" if last_written == 0
+         else f"frames 0-{last_written} are written and kept in {out.path}")
+    err.args = (f"{err.args[0] if err.args else err}; the run stopped computing frame {computing} of "
+                f"{out.frames}: {kept}", *err.args[1:])
 
 
 def _write(sim: Simulation, writer: StageWriter, checkpoint, builder=None) -> int:

@@ -31,6 +31,7 @@ from .limits import (
 from .solver import SolverSettings
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
+from ..io.paths import output_path_problem
 
 WALL_TYPES = ("no_slip", "free_slip", "open")
 WALL_KEYS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
@@ -259,6 +260,9 @@ class Output:
 
     def _check_writable(self, c, key):
         # Refuse now rather than after a long run; missing directories are fine (the writer creates them).
+        too_long = output_path_problem(self.path)  # before any stat: an over-long name makes stat raise
+        if too_long:
+            c.fail(key, self.path, too_long)
         target = Path(self.path).absolute()
         if target.is_dir():
             c.fail(key, self.path, "is a directory; give a file name ending in .usdc")

@@ -267,8 +267,14 @@ def summary(result: RunResult) -> str:
         share = lambda key: 100 * b[key] / b["total"] if b["total"] > 0 else 0.0  # noqa: E731
         held = "".join(f", {share(key):.1f}% {what}" for key, what, on in (
             ("foam", "in foam", "foam"), ("subgrid", "in sub-grid bubbles", "subgrid_bubbles")) if sim.stage(on))
-        lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{held}, "
+        gone = f", {share('left'):.1f}% out through open walls" if sim.open_walls else ""
+        lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{gone}{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
+    if sim.open_walls:
+        liquid = sim.mass_budget()["liquid"]
+        out = 100 * liquid["left"] / liquid["added"] if liquid["added"] > 0 else 0.0
+        lines.append(f"  open walls: {out:.1f}% of the liquid's mass left through them ({liquid['left']:.4g} of "
+                     f"{liquid['added']:.4g} kg seeded and emitted)")
     lines.append(_voids_line(sim))
     if "surface" in timer.seconds:  # built once per frame, not per step
         lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")

@@ -299,6 +299,29 @@ class Collider:
         tau = min(max(t, self.start), math.inf if self.stop is None else self.stop) - self.start
         return np.array(self.center) + np.array(self.velocity) * tau + 0.5 * tau * tau * np.array(self.acceleration)
 
+    def half_extents(self, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        """How far the shape reaches below and above its centre on each axis (a glass stands on
+        its centre, opening along +axis)."""
+        r = self.radius or 0.0
+        lo, hi = np.full(dim, r), np.full(dim, r)
+        a = "xyz".index(self.axis)
+        if self.type == "box":
+            lo = hi = 0.5 * np.asarray(self.size, float)
+        elif self.type == "cylinder" and a < dim:
+            lo[a] = hi[a] = 0.5 * self.length
+        elif self.type == "glass" and a < dim:
+            lo[a], hi[a] = 0.0, self.height
+        return lo, hi
+
+    def swept_bounds(self, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+        """The box the collider covers at some time in [0, t_end]: its centre moves on a parabola per
+        axis, whose extremes lie at the ends of the window, where it starts or stops, or at its turn."""
+        times = [0.0, t_end, self.start] + ([] if self.stop is None else [self.stop])
+        times += [self.start - v / a for v, a in zip(self.velocity, self.acceleration) if a != 0.0]
+        centres = np.array([self.center_at(min(max(t, 0.0), t_end)) for t in times])
+        lo, hi = self.half_extents(len(self.center))
+        return centres.min(axis=0) - lo, centres.max(axis=0) + hi
+
     def speed_between(self, t0: float, t1: float) -> float:
         """The fastest it moves during [t0, t1] (the velocity is linear in time while it moves)."""
         t0, t1 = max(t0, self.start), min(t1, math.inf if self.stop is None else self.stop)

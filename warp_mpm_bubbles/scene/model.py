@@ -25,9 +25,10 @@ from .checks import AXES, SceneError, _Checker, _g, _plain, derive, dim_why, und
 from .quality import GOVERNED
 from .effects import EFFECT_TYPES, EMITTER_TYPES, Collider, Foam
 from .limits import (
-    MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED, MAX_SURFACE_TENSION,
+    Limit, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED, MAX_SURFACE_TENSION,
     MAX_VISCOSITY, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
 )
+from .capacity import check_pour
 from .solver import SolverSettings
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
@@ -43,6 +44,7 @@ KIND_DEFAULTS = {"liquid": {"density": 1000.0, "color": (0.2, 0.45, 0.9)},
                  "foam": {"density": 50.0, "color": (1.0, 1.0, 1.0)}}  # foam: ~5% liquid, the rest air
 OUTPUT_FORMATS = ("instancer", "points", "both")
 UP_AXES = ("Y", "Z")
+MIN_RADIUS_SHARE = 1.0e-3  # [output].particle_radius at least this share of the default radius
 MAX_CELLS = 2**30  # 1024^3: beyond it the grid outgrows a GPU's memory and int32 launch indices
 USD_SUFFIXES = (".usd", ".usdc", ".usda")
 
@@ -218,7 +220,8 @@ class Output:
         frames: frames simulated after the initial one (1..1,000,000): frames + 1 samples,
             time codes 0..frames.
         format: "instancer" (UsdGeomPointInstancer, default) | "points" (UsdGeomPoints) | "both".
-        particle_radius: m, for the spheres drawn; None: half the particle spacing.
+        particle_radius: m, for the spheres drawn; None: half the particle spacing; at least a
+            thousandth of that, at most half the domain's smallest extent.
         up_axis: "Y" (default) | "Z", the stage's upAxis.
         surface: also write the liquid's surface mesh per frame (/World/LiquidSurface; io/surface.py).
         surface_resolution: surface grid cells per simulation cell and axis (1..8; default 2).
@@ -247,7 +250,13 @@ class Output:
         self.format = c.choice(f"{t}.format", self.format, OUTPUT_FORMATS)
         if self.particle_radius is None:
             derive(self, "particle_radius", self.default_radius(scene))
-        self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0)
+        small, large = MIN_RADIUS_SHARE * self.default_radius(scene), Limit(
+            0.5 * min(scene.domain.size), "m: half the domain's smallest extent; one particle's sphere would "
+                                          "be wider than the domain and hide the rest")
+        self.particle_radius = c.number(f"{t}.particle_radius", self.particle_radius, gt=0, le=large, ge=Limit(
+            small, f"m: {MIN_RADIUS_SHARE:g} times the default (half the particle spacing, "
+                   f"{_g(self.default_radius(scene))} m); smaller spheres show as nothing, and usually mean a "
+                   f"unit mistake (mm for m)"))
         self.up_axis = c.choice(f"{t}.up_axis", self.up_axis, UP_AXES)
         self.surface = c.flag(f"{t}.surface", self.surface)
         self.surface_resolution = c.number(f"{t}.surface_resolution", self.surface_resolution, ge=1, le=8, whole=True)
@@ -344,6 +353,7 @@ class Scene:
         for key, m in self.materials.items():
             c.instance(f"[materials.{key}]", m, Material, "a Material")
             m._validate(c, key)
+        _check_material_names(c, self.materials)
         self._validate_effects(c)
         c.instance("[shapes]", self.shapes, list, "a list of shapes ([[shapes]] tables)")
         if not self.shapes:
@@ -357,7 +367,9 @@ class Scene:
             self._check_speed(c, f"[emitters.{i}]", item)
         for i, item in enumerate(self.colliders):
             self._check_speed(c, f"[colliders.{i}]", item)
+            self._check_reaches_domain(c, f"[colliders.{i}]", item)
         check_steps(c, self)  # a first frame needing millions of steps would run silently for hours
+        check_pour(self)  # a closed domain poured over full packs the water several times over
         # Last: the only check that generates samples (after making sure one slab of them fits).
         check_sampling(self)
         ppc, seed = self.solver.particles_per_cell, self.solver.seed
@@ -394,6 +406,19 @@ class Scene:
         if not speed <= MAX_SPEED:
             c.fail(key, speed, f"moves at up to {speed:.3g} m/s during the run, more than {_g(MAX_SPEED)} "
                                f"{MAX_SPEED.why}; lower its speed, velocity or acceleration", shown=f"{speed:.3g} m/s")
+
+    def _check_reaches_domain(self, c: _Checker, key, collider):
+        """Refuse a collider that lies wholly outside the domain for the whole run: it does nothing,
+        and is most likely a misplaced centre (a unit mistake, or a 3D position in a 2D scene)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            lo, hi = collider.swept_bounds(self.output.frames / self.output.fps)
+        size = np.asarray(self.domain.size, float)
+        if (hi <= 0.0).any() or (lo >= size).any():
+            moving = " while it moves" if collider.moves else ""
+            c.fail(f"{key}.center", list(collider.center),
+                   f"the {collider.type} collider covers {_g(lo)} .. {_g(hi)}{moving}, wholly outside the domain "
+                   f"{_g(0 * size)} .. {_g(size)}, so it would touch nothing; move its center inside the domain, "
+                   f"or remove it")
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "<dict>") -> Scene:
@@ -449,8 +474,9 @@ class Scene:
         path = Path(path)
         source = str(path)
         try:
-            with open(path, "rb") as f:
-                d = tomllib.load(f)
+            # Editors on Windows save UTF-8 with a byte-order mark, which tomllib refuses as an
+            # invalid statement at line 1: the mark says nothing about the scene, so drop it.
+            d = tomllib.loads(path.read_bytes().decode("utf-8").removeprefix("\ufeff"))
         except FileNotFoundError:
             raise SceneError(f"{source}: scene file not found", "", source, "an existing .toml file") from None
         except OSError as e:
@@ -496,6 +522,17 @@ class Scene:
         if frames is not None:
             new.output.frames = frames
         return new.validate()
+
+
+def _check_material_names(c: _Checker, materials):
+    """Refuse names that differ only by case ("Water" and "water"): USD prim names and the users
+    who pick materials by name mix them up, and one would silently stand for the other."""
+    seen = {}
+    for key in materials:
+        other = seen.setdefault(str(key).casefold(), key)
+        if other != key:
+            c.fail(f"[materials.{key}]", key, f"differs from [materials.{other}] only by case; material names "
+                                               f"must differ by more than case: rename one, or merge them")
 
 
 def _table_list(c: _Checker, name, d) -> list:

@@ -1,0 +1,230 @@
+"""Every scene a user writes runs right or is refused by name: a closed domain poured over full
+(refused by check, and stopped by the fill guard where check cannot predict it), a fast emitter's
+time step, gas-only scenes, and the input refusals (a byte-order mark, material names differing
+by case, an absurd particle_radius, a collider outside the domain, a gauge pressure the run
+cannot take)."""
+
+import math
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_mpm_bubbles.cli import main
+from warp_mpm_bubbles.core.simulation import Simulation
+from warp_mpm_bubbles.io.fill import MAX_FILL, DomainFullError, check_domain_fill, domain_fill
+from warp_mpm_bubbles.scene.model import SceneError, load_scene
+
+wp.config.quiet = True
+
+# A closed 16 x 16 cell box with a one-cell layer of water and a 4 cm nozzle pouring at 2 m/s:
+# 0.08 m^2/s into 0.04 m^2, full after 14 frames at 30 fps (the user's 45 frames: 3x over).
+POUR = """
+[domain]
+size = [0.2, 0.2]
+cell_size = 0.0125
+walls = {walls}
+[materials.water]
+[[shapes]]
+type = "box"
+material = "water"
+min = [0.0, 0.0]
+max = [0.2, 0.0125]
+[[emitters]]
+type = "liquid_inflow"
+material = "water"
+center = [0.1, 0.18]
+direction = [0.0, -1.0]
+radius = 0.02
+speed = {speed}
+{emitter}
+[output]
+path = "{out}"
+fps = 30
+frames = {frames}
+{extra}
+"""
+
+
+def write(tmp_path, text, name="s.toml", **kw):
+    path = tmp_path / name
+    path.write_text(text.format(out=(tmp_path / "s.usdc").as_posix(), **kw))
+    return path
+
+
+def pour(tmp_path, frames=45, speed=2.0, walls='"free_slip"', emitter="", extra=""):
+    return write(tmp_path, POUR, frames=frames, speed=speed, walls=walls, emitter=emitter, extra=extra)
+
+
+def run_cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return code, out + err
+
+
+# ---------------------------------------------------------------------- a domain that fills up
+def test_a_pour_over_a_closed_box_is_refused_by_the_emitter_with_the_volumes_and_fixes(tmp_path, capsys):
+    code, text = run_cli(capsys, "check", pour(tmp_path))
+    assert code == 2
+    # 0.08 m^2/s for 1.5 s on top of 0.0025 m^2 seeded, into 0.04 m^2: 3.06 times over
+    for words in ("[emitters.0]", "pours 0.12 m^2", "0.0025 m^2", "holds 0.04 m^2", "3.06 times",
+                  "[domain].size", "open", "[emitters.0].stop <= 0.468 s", "[output].frames <= 14", "speed"):
+        assert words in text, words
+    assert not (tmp_path / "s.usdc").exists()
+
+
+@pytest.mark.parametrize("change", [dict(frames=14), dict(emitter="stop = 0.468"),
+                                   dict(walls='{ y_max = "open" }')])
+def test_the_fixes_the_refusal_names_are_accepted(tmp_path, change):
+    load_scene(pour(tmp_path, **change))  # 14 frames fill the box to 0.994 of its room: accepted
+
+
+def test_a_collider_takes_room_from_the_pour(tmp_path):
+    # 12 frames fit the empty box (0.0025 + 0.032 of 0.04 m^2) but not beside a 0.1 x 0.1 m block
+    load_scene(pour(tmp_path, frames=12))
+    block = '[[colliders]]\ntype = "box"\ncenter = [0.05, 0.1]\nsize = [0.1, 0.1]'
+    with pytest.raises(SceneError, match=r"\[emitters.0\].*0.01 of colliders") as err:
+        load_scene(pour(tmp_path, frames=12, extra=block))
+    assert err.value.key == "[emitters.0]"
+
+
+def test_the_999_m_per_s_emitter_is_refused_before_it_runs(tmp_path, capsys):
+    code, text = run_cli(capsys, "check", pour(tmp_path, frames=2, speed=999.0))
+    assert code == 2 and "[emitters.0]" in text and "66.7 times" in text
+
+
+# ----------------------------------------------------------------------- the runtime fill guard
+def test_the_fill_guard_passes_a_full_box_and_stops_an_overfull_one(tmp_path):
+    # Validated for the 14 frames that fit, then stepped past them as nothing predictable would allow
+    # (the guard is what catches a pour check cannot foresee).
+    sim = Simulation(load_scene(pour(tmp_path, frames=14)), "cpu")
+    fills = [check_domain_fill(sim)]
+    for _ in range(14):
+        sim.advance_frame()
+        fills.append(check_domain_fill(sim))
+    # The fill grows by the pour per frame (0.08 m^2/s / 30 fps over 0.04 m^2 = 1/15), to the brim
+    assert fills[0] == pytest.approx(0.0625)
+    assert np.diff(fills) == pytest.approx(1 / 15, abs=0.01)
+    assert 0.98 < fills[-1] <= 1.0
+    with pytest.raises(DomainFullError) as err:
+        for _ in range(2):  # 1.056, then 1.125
+            sim.advance_frame()
+            check_domain_fill(sim)
+    msg = str(err.value)
+    assert err.value.fill > MAX_FILL and f"frame {sim.frame}" in msg and "[emitters.0]" in msg
+    assert "[domain].size" in msg and "open" in msg and "stop" in msg
+
+
+def test_the_fill_counts_solid_cells_out_of_the_room(tmp_path):
+    block = '[[colliders]]\ntype = "box"\ncenter = [0.05, 0.1]\nsize = [0.1, 0.1]'
+    sim = Simulation(load_scene(pour(tmp_path, frames=2, extra=block)), "cpu")
+    sim.advance_frame()
+    # 64 solid cells of 256: the seeded layer (minus the cells under the block) plus one frame's pour
+    water = sim.particles_numpy()["volume"].size * 0.0125**3 / 4
+    assert domain_fill(sim) == pytest.approx(water / (192 * 0.0125**3), rel=1e-5)
+
+
+# ------------------------------------------------------------------------------ a fast emitter
+def test_a_fast_emitter_takes_the_step_its_stream_needs(tmp_path):
+    # An open top lets the stream leave, so check accepts it: the step must carry 200 m/s.
+    sim = Simulation(load_scene(pour(tmp_path, frames=1, speed=200.0, walls='{ y_max = "open" }')), "cpu")
+    limits = sim.dt_limits()
+    cfl = sim.scene.solver.cfl * sim.grid.dx
+    assert min(limits, key=limits.get) == "cfl" and limits["cfl"] <= cfl / 200.0
+    n0 = sim.num_particles
+    sim.step(sim.stable_dt())
+    x = sim.particles_numpy()["positions"][n0:]
+    assert len(x) > 0
+    # Laid within one step's travel of the nozzle and moved one step on: within 2 cfl cells, the
+    # layer's jitter (a quarter of the spacing) aside; no layer overruns the cells ahead.
+    assert (0.18 - x[:, 1]).max() <= 2 * cfl + 0.25 * sim.grid.dx / 2
+
+
+# ------------------------------------------------------------------------------- gas-only scenes
+GAS = """
+[domain]
+size = [0.2, 0.2]
+cell_size = 0.0125
+[materials.air]
+kind = "gas"
+{shapes}
+[output]
+path = "{out}"
+frames = 2
+"""
+
+
+def test_a_gas_alone_in_open_air_leaves(tmp_path):
+    shapes = '[[shapes]]\ntype = "sphere"\nmaterial = "air"\ncenter = [0.1, 0.1]\nradius = 0.04'
+    sim = Simulation(load_scene(write(tmp_path, GAS, shapes=shapes)), "cpu")
+    mass = sim.gas_budget()["inside"]
+    for _ in range(2):  # the steps after the last gas particle left run on nothing
+        sim.advance_frame()
+    budget = sim.gas_budget()
+    assert sim.particles_numpy()["positions"].shape[0] == 0
+    assert budget["vented"] == pytest.approx(mass, rel=1e-6)
+
+
+def test_a_gas_filling_a_closed_box_breathes_to_one_pressure(tmp_path):
+    # Air at rest fills the box; a 0.1 m square inside starts 20 kPa above it. Isothermal: the two
+    # share the box at one pressure, p = p_atm * (rest volume) / (box volume).
+    shapes = ('[[shapes]]\ntype = "box"\nmaterial = "air"\nmin = [0.0, 0.0]\nmax = [0.2, 0.2]\n'
+              '[[shapes]]\ntype = "box"\nmaterial = "air"\nmin = [0.05, 0.05]\nmax = [0.15, 0.15]\npressure = 20000.0')
+    sim = Simulation(load_scene(write(tmp_path, GAS, shapes=shapes)), "cpu")
+    p_atm = 101325.0
+    rest = 0.03 + 0.01 * (p_atm + 20000.0) / p_atm
+    expected = p_atm * rest / 0.04 - p_atm  # 4,873 Pa
+    sim.advance_frame()
+    p = sim.pressure_numpy()
+    assert p.min() == pytest.approx(expected, rel=0.01) and p.max() == pytest.approx(expected, rel=0.01)
+    assert sim.gas_budget()["vented"] == 0.0
+
+
+# ---------------------------------------------------------------------------------- input
+def test_a_byte_order_mark_is_read(tmp_path):
+    plain = pour(tmp_path, frames=2)
+    marked = tmp_path / "bom.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = load_scene(plain), load_scene(marked)
+    b.name = a.name
+    assert a.to_dict() == b.to_dict()
+
+
+def test_material_names_differing_by_case_are_refused(tmp_path):
+    with pytest.raises(SceneError) as err:
+        load_scene(pour(tmp_path, frames=2, extra='[materials.Water]'))
+    assert "[materials.Water]" in str(err.value) and "[materials.water]" in str(err.value)
+    assert "case" in str(err.value) and "rename" in str(err.value)
+
+
+@pytest.mark.parametrize("radius, words", [(1e9, ["<= 0.1", "wider than the domain"]),
+                                           (1e-9, [">= 3.125e-06", "unit mistake"])])
+def test_an_absurd_particle_radius_is_refused(tmp_path, radius, words):
+    with pytest.raises(SceneError) as err:
+        load_scene(pour(tmp_path, frames=2, extra=f"particle_radius = {radius}"))
+    assert err.value.key == "[output].particle_radius"
+    for w in words:
+        assert w in str(err.value)
+    load_scene(pour(tmp_path, frames=2, extra="particle_radius = 0.05"))  # big spheres: the user's choice
+
+
+COLLIDER = '[[colliders]]\ntype = "{type}"\ncenter = {center}\n{more}'
+
+
+@pytest.mark.parametrize("type, center, more, outside", [
+    ("sphere", "[1.0, 0.1]", "radius = 0.05", True),
+    ("box", "[0.1, -0.3]", "size = [0.1, 0.5]", True),  # its top edge at -0.05
+    ("glass", "[0.1, -0.1]", "radius = 0.05\nheight = 0.099\nwall_thickness = 0.0125", True),
+    ("glass", "[0.1, -0.1]", "radius = 0.05\nheight = 0.11\nwall_thickness = 0.0125", False),  # its rim inside
+    ("sphere", "[-0.5, 0.1]", "radius = 0.05\nvelocity = [1.0, 0.0]", False),  # rolls in at 0.45 s
+    ("sphere", "[-0.5, 0.1]", "radius = 0.05\nvelocity = [1.0, 0.0]\nstop = 0.3", True),  # stops short
+])
+def test_a_collider_wholly_outside_the_domain_is_refused(tmp_path, type, center, more, outside):
+    text = pour(tmp_path, frames=30, speed=0.2, extra=COLLIDER.format(type=type, center=center, more=more))
+    if not outside:
+        load_scene(text)
+        return
+    with pytest.raises(SceneError) as err:
+        load_scene(text)
+    assert err.value.key == "[colliders.0].center" and "wholly outside the domain" in str(err.value)

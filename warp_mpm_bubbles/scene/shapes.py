@@ -8,7 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from .checks import AXES, _Checker, _did_you_mean, _fmt, _g, dim_why
-from .limits import MAX_PRESSURE, MAX_SPEED
+from .limits import MAX_SPEED, max_gauge_pressure
 
 
 class _Shape:
@@ -44,7 +44,7 @@ class _Shape:
                                                          f"'{self.material}' is {m.kind}"
                        + (f" with eos = \"{m.eos}\"" if m.is_gas else "") + "; remove the key")
             self.pressure = c.number(f"{key}.pressure", self.pressure, gt=-scene.domain.ambient_pressure,
-                                     le=MAX_PRESSURE)
+                                     le=max_gauge_pressure(mats))
         lo, hi = self.bounds()
         size = np.array(scene.domain.size)
         if (lo < -1e-9 * size).any() or (hi > size * (1 + 1e-9)).any():
@@ -61,7 +61,8 @@ class Box(_Shape):
         material: name of a liquid or gas material in Scene.materials.
         min, max: opposite corners, m (2 or 3 numbers, as [domain].size); min < max on every axis.
         velocity: initial velocity, m/s (default at rest); its speed at most 1,000 m/s.
-        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient, <= 1e9).
+        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient; at most
+            density x 444^2 of the lightest liquid, 1.97e8 for water, and 1e9).
     """
     material: str
     min: tuple
@@ -94,7 +95,8 @@ class Sphere(_Shape):
         material: name of a liquid or gas material in Scene.materials.
         center: m (2 or 3 numbers); radius: m, > 0. The whole shape must lie inside the domain.
         velocity: initial velocity, m/s (default at rest); its speed at most 1,000 m/s.
-        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient, <= 1e9).
+        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient; at most
+            density x 444^2 of the lightest liquid, 1.97e8 for water, and 1e9).
     """
     material: str
     center: tuple
@@ -124,7 +126,8 @@ class Cylinder(_Shape):
         center: m; radius: m, > 0; axis: "x" | "y" | "z" (default "z").
         length: m along the axis; None spans the whole domain along it.
         velocity: initial velocity, m/s (default at rest); its speed at most 1,000 m/s.
-        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient, <= 1e9).
+        pressure: gas only, initial gauge pressure, Pa (above ambient; > -ambient; at most
+            density x 444^2 of the lightest liquid, 1.97e8 for water, and 1e9).
     """
     material: str
     center: tuple

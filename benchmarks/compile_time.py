@@ -64,7 +64,8 @@ def full_scene(out_dir: str):
         emitters=[LiquidInflow("water", center=(0.16, 0.18), direction=(0.0, -1.0), radius=0.01, speed=1.0),
                   GasInjector("air", center=(0.15, 0.02), rate=200.0, radius=0.003, spread=0.01)],
         colliders=[Collider("sphere", center=(0.06, 0.16), radius=0.015, velocity=(0.0, -1.5), stop=0.05)],
-        solver=SolverSettings(particles_per_cell=4), output=Output(path=str(Path(out_dir) / "f.usdc")),
+        solver=SolverSettings(particles_per_cell=4),
+        output=Output(path=str(Path(out_dir) / "f.usdc"), frames=10),  # the pour fills the box in 30 frames
     )
 
 

@@ -48,7 +48,8 @@ def full_scene(tmp_path):
         emitters=[LiquidInflow("water", center=(0.02, 0.09), direction=(0.0, -1.0), radius=0.005, speed=1.0),
                   GasInjector("air", center=(0.08, 0.01), rate=200.0, radius=0.002, spread=0.005)],
         colliders=[Collider("sphere", center=(0.05, 0.085), radius=0.006, velocity=(0.0, -0.5), stop=0.02)],
-        solver=SolverSettings(particles_per_cell=4), output=Output(path=str(tmp_path / "f.usdc")),
+        solver=SolverSettings(particles_per_cell=4),
+        output=Output(path=str(tmp_path / "f.usdc"), frames=10),  # the pour fills the box in 14 frames
     )
 
 

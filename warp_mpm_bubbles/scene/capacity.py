@@ -1,7 +1,7 @@
 """What an emitter may pour into a closed domain, checked before any work starts.
 
 An emitter adds liquid at a fixed rate whatever is already there; the liquid is incompressible,
-so a closed domain (no `open` wall) that receives more liquid than it has room for ends with the
+so a closed domain (no `open` wall but the top, above which liquid falls back in) that receives more liquid than it has room for ends with the
 water packed several times over its density (a 2 m/s stream for 45 frames into a 16 x 16 cell box:
 3,130 particles where 1,024 fill it). `check_pour` refuses such a scene by the emitter's key.
 
@@ -79,6 +79,12 @@ def _most_frames(scene, room: float, seeded: float) -> int:
     return lo
 
 
+def _example_wall(domain) -> str:
+    """The floor (the wall opposite the top) or, without gravity, x_max."""
+    top = top_wall(domain)
+    return top[:2] + ("min" if top.endswith("max") else "max") if top else "x_max"
+
+
 def _down(x: float) -> float:
     """x rounded down to 3 significant digits (a bound the user can type that still holds)."""
     if x <= 0.0:
@@ -87,12 +93,28 @@ def _down(x: float) -> float:
     return math.floor(x / scale) * scale
 
 
+def top_wall(domain) -> str | None:
+    """The wall against gravity ("y_max" under the default gravity), None without gravity."""
+    g = np.asarray(domain.gravity, float)
+    if not g.any():
+        return None
+    a = int(np.argmax(np.abs(g)))
+    return f"{'xyz'[a]}_{'max' if g[a] < 0.0 else 'min'}"
+
+
+def draining_walls(domain) -> list[str]:
+    """The open walls the liquid can leave through: all but the top, above which liquid flies and
+    falls back in (core/transfer_kernels.py, open_wall_exit)."""
+    walls = domain.walls if isinstance(domain.walls, dict) else {}
+    return [k for k, v in walls.items() if v == "open" and k != top_wall(domain)]
+
+
 def check_pour(scene):
-    """Refuse a closed domain whose liquid emitters bring more liquid than it has room for."""
+    """Refuse a domain the liquid cannot leave (no open wall but the top) whose liquid emitters
+    bring more liquid than it has room for."""
     pours = [(i, e) for i, e in enumerate(scene.emitters) if hasattr(e, "volume_rate")]
-    walls = scene.domain.walls
-    if not pours or "open" in (walls.values() if isinstance(walls, dict) else (walls,)):
-        return  # an open wall lets the liquid leave: what stays is not predictable here
+    if not pours or draining_walls(scene.domain):
+        return  # the liquid leaves through an open wall: what stays is not predictable here
     room, solid, seeded = room_and_seeded_liquid(scene)
     t_end = scene.output.frames / scene.output.fps
     poured = {i: poured_volume(e, t_end) for i, e in pours}
@@ -111,11 +133,12 @@ def check_pour(scene):
     msg = (f"{scene.source}: {key}: pours {poured[key_i]:.4g} {unit} of liquid over the run ({e.volume_rate:.4g} "
            f"{unit}/s from t = {_g(e.start)} s to {_g(t_end if e.stop is None else min(e.stop, t_end))} s)"
            + (f", other emitters {others:.4g} {unit}" if others else "")
-           + f", on top of {seeded:.4g} {unit} that the shapes seed: {total:.4g} {unit} in all, but the closed "
-           f"domain holds {room:.4g} {unit} ({room + solid:.4g} minus {solid:.4g} of colliders"
+           + f", on top of {seeded:.4g} {unit} that the shapes seed: {total:.4g} {unit} in all, but the domain, "
+           f"which the liquid cannot leave, holds {room:.4g} {unit} ({room + solid:.4g} minus {solid:.4g} of colliders"
            + (", per metre of the 2D slab" if scene.dim == 2 else "") + "), so the liquid would be packed "
-           f"{total / room:.3g} times over its density. Fixes: a bigger [domain].size, an open wall "
-           f"([domain].walls = {{ y_max = \"open\" }}: the liquid leaves through it), {key}.{stop_fix}, "
+           f"{total / room:.3g} times over its density. Fixes: a bigger [domain].size, an open wall the "
+           f"liquid can leave through (not the top, where it falls back in: [domain].walls = "
+           f"{{ {_example_wall(scene.domain)} = \"open\" }}), {key}.{stop_fix}, "
            + (f"[output].frames <= {frames}, " if frames >= 1 else "")
            + f"or a lower {key}.speed or radius")
     raise SceneError(msg, key, poured[key_i], f"at most {max(spare, 0.0):.4g} {unit}")

@@ -1,9 +1,10 @@
 """What an emitter may pour into a closed domain, checked before any work starts.
 
 An emitter adds liquid at a fixed rate whatever is already there; the liquid is incompressible,
-so a closed domain (no `open` wall but the top, above which liquid falls back in) that receives more liquid than it has room for ends with the
-water packed several times over its density (a 2 m/s stream for 45 frames into a 16 x 16 cell box:
-3,130 particles where 1,024 fill it). `check_pour` refuses such a scene by the emitter's key.
+so a closed domain (no `open` wall but the top, above which liquid falls back in) that receives
+more liquid than it has room for ends with the water packed several times over its density (a
+2 m/s stream for 45 frames into a 16 x 16 cell box: 3,130 particles where 1,024 fill it).
+`check_pour` refuses such a scene by the emitter's key.
 
 What is counted, all per metre of slab in 2D (m^2) and in m^3 in 3D:
 - the room: the domain minus the colliders where they stand at t = 0 (a moving collider keeps its

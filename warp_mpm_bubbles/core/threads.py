@@ -64,7 +64,7 @@ class Parallel:
         self._pool = ThreadPoolExecutor(threads - 1, thread_name_prefix="warp_mpm_cpu") if threads > 1 else None
 
     def run(self, calls):
-        if self._pool is None or len(calls) == 1:
+        if self._pool is None or len(calls) <= 1:  # nothing to launch (an empty box), or one call
             for call in calls:
                 call()
             return

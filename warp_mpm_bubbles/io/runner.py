@@ -15,6 +15,7 @@ from .checkpoint import checkpoint_path, load_checkpoint, resumable_checkpoint, 
 from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
 from .devices import check_device, check_memory
+from .fill import check_domain_fill
 from .guards import Heartbeat, check_fluid_left, frame_step_guard
 from .ownership import OutputClaim, OutputError, frames_dir, write_failed
 from .streams import RunLog, now, safe_stream
@@ -158,6 +159,7 @@ def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame, run_log) ->
             while sim.frame < out.frames:
                 frame_step_guard(sim)
                 sim.advance_frame(on_step=on_step)
+                check_domain_fill(sim)  # water squeezed into too small a room stops before it is written
                 saved = write()
                 if bar:
                     bar.update(sim.frame, sim.time, sim.stats.steps)

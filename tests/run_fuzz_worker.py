@@ -3,7 +3,8 @@ and kernel loading cost seconds; a scene of the fuzz costs a fraction of one), o
 
     python tests/run_fuzz_worker.py [--scene-seconds=N] JOBS.json RESULTS.jsonl
 
-JOBS.json is a list of {"scene": path, "argv": [extra flags]}. Each result line holds the scene, the exit
+JOBS.json is a list of {"scene": path, "argv": [extra flags], "tag": a name the result carries}.
+Each result line holds the scene, its tag, the exit
 code ("hang" when it ran past --scene-seconds), the captured stdout and stderr, the wall seconds and,
 for every frame the run wrote, what the test cannot read from the USD file: the liquid's rest volume
 (mass / density: what entered and stayed), the volume it occupies (Simulation.liquid_volume), the gas
@@ -15,6 +16,7 @@ without a result line.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import signal
@@ -43,7 +45,9 @@ def frame_metrics(sim) -> dict:
     liquid = (p["phase"] == 0) & liquid_material[p["material"]]
     rest = float((p["mass"][liquid].astype(np.float64) / density[p["material"][liquid]]).sum())
     emitted = sim.host_state.get("emitters")
+    state = hashlib.sha1(p["positions"].tobytes() + p["velocities"].tobytes() + p["ids"].tobytes())
     return {
+        "state_sha1": state.hexdigest(),  # the same scene must give the same state (CPU determinism)
         "frame": int(sim.frame), "time": float(sim.time), "particles": int(len(p["ids"])),
         "liquid_rest_volume": rest,
         "liquid_occupied_volume": float(sim.liquid_volume()),
@@ -102,6 +106,7 @@ def main(args: list[str]) -> int:
     with open(results, "a") as f:
         for spec in jobs:
             line = run_one(spec["scene"], spec.get("argv", []), seconds)
+            line["tag"] = spec.get("tag", "")
             f.write(json.dumps(line) + "\n")
             f.flush()
     return 0

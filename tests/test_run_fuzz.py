@@ -14,7 +14,9 @@ tests/run_fuzz_worker.py), and every run is held to what a user may expect of it
   rest volume equal to what the shapes seeded plus what the streams let in (liquid_entered), and no
   more than the box holds; the room it occupies not squeezed below its rest volume (COMPRESSION);
   liquid and gas together within the box (FILL_TOLERANCE); the gas budget's total constant (growing
-  only by what injectors add).
+  only by what injectors add);
+- every REPEAT_EVERY-th scene also runs again (the same state in every frame: CPU determinism) and
+  once for one frame, then --resume to the end (the uninterrupted run's state from frame 2 on).
 
 Liquid leaving through open walls is not booked yet (no mass budget for it), so open walls are held
 only to what holds for every wall: nothing grows, nothing is squeezed.
@@ -284,18 +286,54 @@ def check_run(bad_key, result, out_dir: Path) -> list[str]:
     return problems + check_frames(scene, data, result["frames"]) + check_volumes(scene, result["frames"])
 
 
+def check_repeats(main, again, resumed) -> list[str]:
+    """The same scene run again (to another path) gives the same state in every frame; run for one
+    frame and resumed to the end, it gives the uninterrupted run's state from the resumed frames on."""
+    problems = []
+    want = {m["frame"]: m["state_sha1"] for m in main["frames"]}
+    if again["code"] != 0:
+        problems.append(f"run again, exit {again['code']}: {again['stderr'].strip()[-200:]}")
+    elif {m["frame"]: m["state_sha1"] for m in again["frames"]} != want:
+        differ = [m["frame"] for m in again["frames"] if want.get(m["frame"]) != m["state_sha1"]]
+        problems.append(f"run again, the state differs in frames {differ}: not deterministic")
+    first, rest = resumed
+    if first["code"] != 0 or rest["code"] != 0:
+        problems.append(f"run for one frame then resumed: exits {first['code']}, {rest['code']}: "
+                        f"{(first['stderr'] + rest['stderr']).strip()[-200:]}")
+    else:
+        differ = [m["frame"] for m in rest["frames"] if want.get(m["frame"]) != m["state_sha1"]]
+        if differ or not rest["frames"]:
+            problems.append(f"resumed after frame 1, the state differs from the uninterrupted run's in frames "
+                            f"{differ or 'all (none written)'}")
+    return problems
+
+
 # --------------------------------------------------------------------------------------- driver
+REPEAT_EVERY = 10  # every 10th scene also runs again, and once more interrupted and resumed
+
+
+def jobs_for(i: int, scene_dir: Path, bad_key) -> list[dict]:
+    scene = str(scene_dir / "scene.toml")
+    argv = ["--device", "cpu"] + (["--quiet"] if i % 2 else [])  # half print progress and the summary
+    jobs = [{"scene": scene, "argv": argv, "tag": "main"}]
+    if i % REPEAT_EVERY == 0 and bad_key is None:
+        other = lambda name: ["--stage-path", (scene_dir / name / "fuzz.usdc").as_posix()]  # noqa: E731
+        jobs += [{"scene": scene, "argv": argv + other("again"), "tag": "again"},
+                 {"scene": scene, "argv": argv + other("resumed") + ["--num-frames", "1"], "tag": "first"},
+                 {"scene": scene, "argv": argv + other("resumed") + ["--resume"], "tag": "rest"}]
+    return jobs
+
+
 def run_fuzz(indices, tmp_path: Path, timeout: float):
     """Generate, run (one worker process) and check the scenes; returns {index: problems} of the
-    failures and the results by index."""
+    failures and the main runs' results by index."""
     jobs, bad_keys = [], {}
     for i in indices:
         scene_dir = tmp_path / f"s{i:03d}"
         scene_dir.mkdir()
         text, bad_keys[i] = generate(i, (scene_dir / "out" / "fuzz.usdc").as_posix())
         (scene_dir / "scene.toml").write_text(text)
-        argv = ["--device", "cpu"] + (["--quiet"] if i % 2 else [])  # half print progress and the summary
-        jobs.append({"scene": str(scene_dir / "scene.toml"), "argv": argv})
+        jobs += jobs_for(i, scene_dir, bad_keys[i])
     (tmp_path / "jobs.json").write_text(json.dumps(jobs))
     results_path = tmp_path / "results.jsonl"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), os.environ.get("PYTHONPATH", "")]))
@@ -308,19 +346,25 @@ def run_fuzz(indices, tmp_path: Path, timeout: float):
         hung = "the worker ran past its timeout"
     except subprocess.CalledProcessError as err:
         hung = f"the worker died (exit {err.returncode}): {err.stderr[-600:]}"
-    results = {}
+    tagged = {}
     if results_path.exists():
         for line in results_path.read_text().splitlines():
             r = json.loads(line)
-            results[int(Path(r["scene"]).parent.name[1:])] = r
+            tagged[int(Path(r["scene"]).parent.name[1:]), r["tag"]] = r
+    results = {i: r for (i, tag), r in tagged.items() if tag == "main"}
     failures = {}
     for i in indices:
-        if i not in results:
+        mine = {tag: r for (j, tag), r in tagged.items() if j == i}
+        if len(mine) < len(jobs_for(i, tmp_path / f"s{i:03d}", bad_keys[i])):
             failures[i] = [f"no result: {hung or 'missing'} (this scene was running or not reached)"]
             break  # the scenes after it never ran
-        problems = check_run(bad_keys[i], results[i], tmp_path / f"s{i:03d}" / "out")
-        if results[i]["code"] == "hang":
-            problems = [f"still running after {SCENE_SECONDS} s: a hang"]
+        hangs = [tag for tag, r in mine.items() if r["code"] == "hang"]
+        if hangs:
+            failures[i] = [f"still running after {SCENE_SECONDS} s ({', '.join(hangs)} run): a hang"]
+            continue
+        problems = check_run(bad_keys[i], mine["main"], tmp_path / f"s{i:03d}" / "out")
+        if "again" in mine and mine["main"]["code"] == 0:
+            problems += check_repeats(mine["main"], mine["again"], (mine["first"], mine["rest"]))
         if problems:
             failures[i] = problems
     return failures, results

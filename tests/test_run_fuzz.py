@@ -73,15 +73,7 @@ COMPRESSION = 0.1
 FILL_TOLERANCE = 0.02
 
 
-def load(path):
-    return load_scene(path)
-
-
 # --------------------------------------------------------------------------------------- bounds
-def run_time(scene) -> float:
-    return scene.output.frames / scene.output.fps
-
-
 def speed_bound(scene, t: float) -> tuple[float, dict]:
     """The fastest any particle may move at time t, with its terms (m/s). Each is the most one cause
     can give; they are added as if all acted on the same particle in the same direction:
@@ -92,7 +84,7 @@ def speed_bound(scene, t: float) -> tuple[float, dict]:
       doubled for gas: a bubble's added mass is half the liquid it displaces (3D), so it rises at up to
       twice the speed its buoyancy would give a body of that liquid;
     - pressure: a gas shape's gauge pressure drives the liquid at Bernoulli's sqrt(2 |p| / rho);
-    - emitters: a stream's speed, an injector's bubble velocity;
+    - emitters: the fastest stream's speed or injected bubble's velocity;
     - colliders: twice the fastest collider's speed (the potential flow past a cylinder peaks at 2 U);
     - capillary: the grid's fastest capillary wave, sqrt(pi sigma / (rho dx)) (wavelength 2 dx);
     - correction: the volume correction undoes a cell's over-fill within its relaxation time tau,
@@ -276,7 +268,7 @@ def check_run(bad_key, result, out_dir: Path) -> list[str]:
         return problems + [f"a bad value under {bad_key} was not refused (exit {code})"]
     if code == 2:
         return problems + check_refusal(result, bad_key, out_dir)
-    scene = load(result["scene"])
+    scene = load_scene(result["scene"])
     if code == 1:
         return problems + check_stopped(result, scene)
     try:

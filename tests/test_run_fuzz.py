@@ -21,10 +21,10 @@ tests/run_fuzz_worker.py), and every run is held to what a user may expect of it
 Liquid leaving through open walls is not booked yet (no mass budget for it), so open walls are held
 only to what holds for every wall: nothing grows, nothing is squeezed.
 
-Size: CI_SCENES scenes, 19 s with Warp's kernels cached on an idle two-core machine for 120 of them,
-33 s for 200, 55-67 s for 200 while other jobs load it, about 115 s for 120 compiling every kernel
-module; the `slow` test runs the next SLOW_SCENES (200; WARP_MPM_BUBBLES_RUN_FUZZ_SCENES sets it,
-e.g. 1000 for a longer hunt). A failure lists every failing scene with its reasons; the scene files
+Size: CI_SCENES (200) scenes, with every tenth run three times more: 24-33 s with Warp's kernels
+cached on two cores, 46 s compiling every kernel module first (an empty WARP_CACHE_PATH), up to about
+70 s while other jobs load the machine; 1000 scenes took 192 s. The `slow` test runs the next
+SLOW_SCENES (200; WARP_MPM_BUBBLES_RUN_FUZZ_SCENES sets it, e.g. 1000 for a longer hunt). A failure lists every failing scene with its reasons; the scene files
 stay under pytest's tmp directory, and run_fuzz_scenes.generate(index, path) makes scene `index`
 again. test_scenes_the_fuzz_found holds the failures it found, reduced to a few lines each, to the
 same checks.
@@ -48,7 +48,7 @@ from warp_mpm_bubbles.scene.effects import GasInjector, LiquidInflow
 from warp_mpm_bubbles.scene.model import load_scene
 
 HERE = Path(__file__).resolve().parent
-CI_SCENES = 200  # measured below (module docstring)
+CI_SCENES = 200  # its cost: the module docstring
 # The slow test runs the next SLOW_SCENES scenes (disjoint from CI's); more for a longer hunt.
 SLOW_SCENES = int(os.environ.get("WARP_MPM_BUBBLES_RUN_FUZZ_SCENES", "200"))
 # A scene costs well under a second (about 10 s when it compiles a kernel module): past this, a hang.

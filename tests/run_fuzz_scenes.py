@@ -341,13 +341,13 @@ HARD_SCENES = {
     "pool_on_open_floor": (_HEADER.format(w=0.1, h=0.1, walls='walls = {{ y_min = "open" }}\n')
                            + _WATER_BOX.format(w=0.1, h=0.05) + _OUTPUT.format(fps=30.0, frames=3), (0, 1, 2)),
     # A stream poured into a closed box: by frame 4 the box holds more water than its volume
-    # (rest volume 1.2 of the box) and the water is squeezed, silently (exit 0).
+    # (rest volume 1.19 of the box) and the water is squeezed, silently (exit 0).
     "pour_into_closed_box": (_HEADER.format(w=0.1, h=0.1, walls="") + _WATER_BOX.format(w=0.1, h=0.08)
                              + '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.05, 0.095]\n'
                                'direction = [0.0, -1.0]\nradius = 0.01\nspeed = 1.5\n'
                              + _OUTPUT.format(fps=30.0, frames=4), (0, 1, 2)),
     # Gas injected into a closed box of water: the gas keeps its rest volume (vol0 J) instead of
-    # being compressed, so liquid and gas fill 2.8 times the box by frame 3.
+    # being compressed, so by frame 3 the liquid fills 0.90 of the box and the gas 2.12 more.
     "gas_injected_into_closed_box": (_HEADER.format(w=0.1, h=0.1, walls="") + '[materials.air]\nkind = "gas"\n'
                                      + _WATER_BOX.format(w=0.1, h=0.09)
                                      + '[[emitters]]\ntype = "gas_injector"\nmaterial = "air"\ncenter = [0.05, 0.02]\n'
@@ -370,7 +370,8 @@ HARD_SCENES = {
                                 (0, 1, 2)),
     # A closed tank filled to the lid with two static colliders (a rod on the right wall over a glass's
     # wall, sealing a two-cell pocket between them and the wall): nothing moves or enters, yet it
-    # reaches 6 m/s in frame 1 and NaN in frame 3 (exit 1). A tank at rest must run (exit 0).
+    # reaches 6 m/s in frame 1, and by frame 3 speeds whose CFL step is 1.2e-7 s (exit 1: the frame
+    # would need 123,000 steps; with a moving rod, NaN). A tank at rest must run (exit 0).
     "static_colliders_in_a_full_tank": (
         '[domain]\nsize = [0.32, 0.3]\ncell_size = 0.02\nwalls = "no_slip"\n[materials.water]\n'
         + _WATER_BOX.format(w=0.32, h=0.3)

@@ -368,6 +368,11 @@ HARD_SCENES = {
                                 + '[[colliders]]\ntype = "sphere"\ncenter = [0.0139, 0.0139]\nradius = 0.0116\n'
                                   'acceleration = [0.0, -9.81]\nstop = 0.043\n' + _OUTPUT.format(fps=60.0, frames=3),
                                 (0, 1, 2)),
+    # Colliders covering all the fluid: refused (exit 2, "no fluid to simulate"), but after the run
+    # claimed its output, so the output's folder is left behind, empty.
+    "colliders_cover_all_the_fluid": (_HEADER.format(w=0.1, h=0.1, walls="") + _WATER_BOX.format(w=0.1, h=0.03)
+                                      + '[[colliders]]\ntype = "box"\ncenter = [0.05, 0.02]\nsize = [0.2, 0.06]\n'
+                                      + _OUTPUT.format(fps=30.0, frames=2), (2,)),
     # A closed tank filled to the lid with two static colliders (a rod on the right wall over a glass's
     # wall, sealing a two-cell pocket between them and the wall): nothing moves or enters, yet it
     # reaches 6 m/s in frame 1, and by frame 3 speeds whose CFL step is 1.2e-7 s (exit 1: the frame

@@ -154,9 +154,10 @@ def check_refusal(result, bad_key, out_dir: Path) -> list[str]:
         problems.append(f"refused, but not under the bad value's key {bad_key}: {err[:300]!r}")
     if not bad_key and not KEY.search(err) and "no fluid to simulate" not in err:
         problems.append(f"exit 2 naming no key and no known cause: {err[:300]!r}")
-    left = sorted(p.name for p in out_dir.iterdir()) if out_dir.exists() else []
-    if left:
-        problems.append(f"exit 2, yet the output folder holds {left}: a refusal must create nothing")
+    if out_dir.exists():  # the scene's output folder does not exist before the run
+        left = sorted(p.name for p in out_dir.iterdir())
+        problems.append(f"exit 2, yet the output folder {'holds ' + str(left) if left else 'was created (empty)'}: "
+                        f"a refusal must create nothing")
     return problems
 
 

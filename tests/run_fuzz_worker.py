@@ -8,7 +8,9 @@ Each result line holds the scene, its tag, the exit
 code ("hang" when it ran past --scene-seconds), the captured stdout and stderr, the wall seconds and,
 for every frame the run wrote, what the test cannot read from the USD file: the liquid's rest volume
 (mass / density: what entered and stayed), the volume it occupies (Simulation.liquid_volume), the gas
-budget's total and what the emitters have emitted so far. tests/test_run_fuzz.py starts it with a
+budget's total and what the emitters have emitted so far. Measuring does not change the run (the
+re-splat Simulation.liquid_volume does is rebuilt every step): the USD it writes matched a plain
+`run`'s bit for bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a
 timeout, so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
 without a result line.
 """

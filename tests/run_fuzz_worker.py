@@ -4,14 +4,14 @@ and kernel loading cost seconds; a scene of the fuzz costs a fraction of one), o
     python tests/run_fuzz_worker.py [--scene-seconds=N] JOBS.json RESULTS.jsonl
 
 JOBS.json is a list of {"scene": path, "argv": [extra flags], "tag": a name the result carries}.
-Each result line holds the scene, its tag, the exit
-code ("hang" when it ran past --scene-seconds), the captured stdout and stderr, the wall seconds and,
-for every frame the run wrote, what the test cannot read from the USD file: the liquid's rest volume
-(mass / density: what entered and stayed), the volume it occupies (Simulation.liquid_volume), the gas
-budget's total and what the emitters have emitted so far. Measuring does not change the run (the
-re-splat Simulation.liquid_volume does is rebuilt every step): the USD it writes matched a plain
-`run`'s bit for bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a
-timeout, so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
+Each result line holds the scene, its tag, the exit code ("hang" when it ran past --scene-seconds),
+the captured stdout and stderr, the wall seconds and, for every frame the run wrote, what the test
+cannot read from the USD file: a hash of the state, the liquid's rest volume (mass / density: what
+entered and stayed), the volume it occupies (Simulation.liquid_volume), the gas budget's total and
+volume, and what the emitters have emitted so far. Measuring does not change the run (the grid that
+liquid_volume re-splats is rebuilt every step): the USD it writes matched a plain `run`'s bit for
+bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a timeout,
+so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
 without a result line.
 """
 

@@ -7,8 +7,8 @@ JOBS.json is a list of {"scene": path, "argv": [extra flags], "tag": a name the 
 Each result line holds the scene, its tag, the exit code ("hang" when it ran past --scene-seconds),
 the captured stdout and stderr, the wall seconds and, for every frame the run wrote, what the test
 cannot read from the USD file: a hash of the state, the liquid's rest volume (mass / density: what
-entered and stayed), the volume it occupies (Simulation.liquid_volume), the gas budget's total and
-volume, and what the emitters have emitted so far. Measuring does not change the run (the grid that
+entered and stayed), the volume it occupies (Simulation.liquid_volume), the liquid's mass budget (what left
+through open walls), the gas budget's total and volume, and what the emitters have emitted so far. Measuring does not change the run (the grid that
 liquid_volume re-splats is rebuilt every step): the USD it writes matched a plain `run`'s bit for
 bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a timeout,
 so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
@@ -45,7 +45,13 @@ def frame_metrics(sim) -> dict:
     density = np.array([m.density for m in mats])
     liquid_material = np.array([m.kind == "liquid" for m in mats])
     liquid = (p["phase"] == 0) & liquid_material[p["material"]]
-    rest = float((p["mass"][liquid].astype(np.float64) / density[p["material"][liquid]]).sum())
+    rest_each = p["mass"][liquid].astype(np.float64) / density[p["material"][liquid]]
+    rest = float(rest_each.sum())
+    # liquid flying above an open top (outside the box; no grid splats it, so it occupies no cell)
+    hi = np.array(sim.grid.domain_size[:sim.grid.dim])
+    x = p["positions"][liquid][:, :sim.grid.dim]
+    flying = ((x < 0.0) | (x > hi)).any(1)
+    budget = sim.mass_budget()["liquid"]
     emitted = sim.host_state.get("emitters")
     state = hashlib.sha1(p["positions"].tobytes() + p["velocities"].tobytes() + p["ids"].tobytes())
     return {
@@ -53,6 +59,8 @@ def frame_metrics(sim) -> dict:
         "frame": int(sim.frame), "time": float(sim.time), "particles": int(len(p["ids"])),
         "liquid_rest_volume": rest,
         "liquid_occupied_volume": float(sim.liquid_volume()),
+        "liquid_flying_volume": float(rest_each[flying].sum()),
+        "liquid_left_mass": budget["left"], "liquid_added_mass": budget["added"], "liquid_mass_error": budget["error"],
         "gas_total": float(sim.gas_budget()["total"]) if sim.has_gas else None,
         "gas_volume": float(sim.gas_budget()["volume"]) if sim.has_gas else 0.0,
         "emitted": None if emitted is None else np.asarray(emitted)[:, 1].astype(int).tolist(),

@@ -93,11 +93,21 @@ def fly(x: wp.vec3, v: wp.vec3, geo: GridGeometry, dt: float):
     vn = v + dt * geo.gravity
     moved = x + dt * vn
     code = open_wall_exit(moved, geo, PHASE_LIQUID)  # still above: AIRBORNE; fell back in: ACTIVE
-    xn = moved
-    if code == ACTIVE:  # back in the domain: kept inside it like any moved particle
-        xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
-        vn = wall_stopped(moved, xn, vn, geo.dim)
-    return xn, vn, code
+    xn, vc = keep_in_domain(moved, vn, code, geo)
+    return xn, vc, code
+
+
+@wp.func
+def keep_in_domain(moved: wp.vec3, vp: wp.vec3, code: int, geo: GridGeometry):
+    """Where a particle moved to `moved` with velocity vp stays, and its velocity: clamped into the
+    domain, losing what pushed it into a wall; an AIRBORNE one keeps its height above the open top
+    (and its speed along it), but stays above the domain, as if the closed walls went on up."""
+    xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
+    vn = wall_stopped(moved, xn, vp, geo.dim)
+    if code == AIRBORNE:
+        xn[geo.up_axis] = moved[geo.up_axis]
+        vn[geo.up_axis] = vp[geo.up_axis]
+    return xn, vn
 
 
 @wp.kernel(enable_backward=False)
@@ -615,12 +625,9 @@ def _g2p_kernel(dim: int):
         # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
         # Through an open wall it leaves (booked and retired by book_outflow), or flies (AIRBORNE).
         moved = xp + dt * vp
-        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))
-        vn = wall_stopped(moved, xn, vp, wp.static(dim))
         code = open_wall_exit(moved, geo, phase[p])
+        xn, vn = keep_in_domain(moved, vp, code, geo)
         if code == AIRBORNE:
-            xn = moved
-            vn = vp
             Cp = wp.mat33(0.0)  # a free-falling drop moves as one
         active[p] = code
         x[p] = xn

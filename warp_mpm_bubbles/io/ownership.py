@@ -140,6 +140,7 @@ class OutputLock:
         self.run_id = run_id or new_run_id()
         self.log = log
         self.held = False
+        self.created_dirs: list = []  # set by acquire
 
     def _info(self) -> dict:
         pid = os.getpid()
@@ -147,6 +148,8 @@ class OutputLock:
                 "started": _now(), "run_id": self.run_id}
 
     def acquire(self) -> "OutputLock":
+        # the folders this lock makes, deepest first: a run refused before it wrote anything removes them
+        self.created_dirs = [d for d in (self.path.parent, *self.path.parent.parents) if not d.exists()]
         for _ in range(5):  # each retry follows a lock that vanished or a stale one removed
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -349,6 +352,12 @@ class OutputClaim:
 
     def __exit__(self, *exc):
         self.lock.release()
+        if not self.prepared:  # refused or stopped before the folder was ours: leave no empty folder behind
+            for folder in self.lock.created_dirs:
+                try:
+                    folder.rmdir()
+                except OSError:  # not empty (someone else's file), or gone
+                    break
 
 
 def _size(n: float) -> str:

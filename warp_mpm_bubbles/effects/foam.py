@@ -32,8 +32,9 @@ from ..core.grid import PHASE_FOAM, PHASE_GAS
 from ..core.stage import Stage
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
+from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
 from ..core.transfer_kernels import (
-    CELL_OFFSET, clamp_to_domain, grid_coord, open_wall_exit, interpolate_velocity, make_stencil, wall_stopped,
+    CELL_OFFSET, grid_coord, interpolate_velocity, make_stencil,
 )
 
 wp.set_module_options({"enable_backward": False})

@@ -54,8 +54,9 @@ from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
 from .subgrid_drag import (ADDED_MASS, PI, add_face_impulse, drag_impulse_per_speed, face_fluid_mass,
                            implicit_relative_speed)
+from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
 from ..core.transfer_kernels import (
-    U_OFFSET, V_OFFSET, W_OFFSET, clamp_to_domain, grid_coord, open_wall_exit, interpolate_velocity, wall_stopped,
+    U_OFFSET, V_OFFSET, W_OFFSET, grid_coord, interpolate_velocity,
 )
 
 wp.set_module_options({"enable_backward": False})

@@ -75,12 +75,12 @@ _GAS_RATE_LIMIT = "limit = min(limit, max(GAS_EXPANSION_SHARE / rate, floor))"
 _POCKET = "large = sizes[inverse] >= POCKET_CELLS"
 _P2G_GAS = ("pg = gas_pressure(law[p], J[p], gamma[p], p_atm)\n"
             "    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)")
-_G2P_MOVE = "moved = xp + dt * vp\n        xn = clamp_to_domain(moved, domain_hi, dx, wp.static(dim))"  # g2p's, not foam's
+_G2P_MOVE = "moved = xp + dt * vp\n        code = open_wall_exit(moved, geo, phase[p])"  # g2p's, not foam's
 MUTATIONS = [
     # --- transfers
     ("apic_dropped_p2g", TK, "wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm)", "wp.vec2(wm * vel, wm)", [VORTEX, VISCOSITY]),
-    ("velocity_gain_0.2pct", TK, "vn = wall_stopped(moved, xn, vp, wp.static(dim))",
-     "vn = 1.002 * wall_stopped(moved, xn, vp, wp.static(dim))", [VORTEX, FREEFALL]),
+    ("velocity_gain_0.2pct", TK, "xn, vn = keep_in_domain(moved, vp, code, geo)",
+     "xn, vn = keep_in_domain(moved, vp, code, geo)\n        vn = 1.002 * vn", [VORTEX, FREEFALL]),
     ("apic_gradient_x0.9", TK, "grad += (4.0 / (dx * dx)) * w * g * dpos", "grad += (3.6 / (dx * dx)) * w * g * dpos",
      [VORTEX, VISCOSITY]),
     ("bspline_centre_weight", TK, "0.75 - (f - 1.0) * (f - 1.0)", "0.76 - (f - 1.0) * (f - 1.0)", [FREEFALL, VORTEX]),

@@ -262,7 +262,11 @@ def check_volumes(scene, frames_meta) -> list[str]:
                 if abs(m["emitted"][i] - expect) > 1.0 + 1e-6 * expect:
                     problems.append(f"frame {m['frame']}: emitter {i} emitted {m['emitted'][i]} layers by "
                                     f"t = {m['time']:.4g} s, expected {expect:.1f} (speed x time / spacing)")
-        if rest > box * (1.0 + REST_VOLUME_TOLERANCE):
+        # A box with no way in holds its seeded liquid to rounding; a stream into a full box with an
+        # open wall overfills it while the surplus is on its way out (the volume correction's tau:
+        # measured 0.8-1.3% within a frame, scenes 242, 335, 346, 352), as a fluid's drift.
+        over = REST_VOLUME_TOLERANCE if not scene.emitters else FILL_TOLERANCE
+        if rest > box * (1.0 + over):
             problems.append(f"frame {m['frame']}: the liquid's rest volume is {rest / box:.3f} of the domain's: "
                             f"more water than the box holds, squeezed in")
         elif rest + m["gas_volume"] > box * (1.0 + FILL_TOLERANCE):

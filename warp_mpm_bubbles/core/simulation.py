@@ -582,8 +582,12 @@ class Simulation:
 
     def gas_budget(self) -> dict[str, float]:
         """Gas mass (kg) in the liquid as resolved gas ("inside") and as sub-grid bubbles, in foam,
-        vented to the atmosphere (burst foam included), the float32 rounding of bubble conversions
-        (effects/subgrid.py), and their sum (conserved exactly). "volume": the resolved gas's volume."""
+        vented to the atmosphere (burst foam included, and injected bubbles released straight into
+        the air), the float32 rounding of bubble conversions (effects/subgrid.py), and their sum
+        (conserved exactly; injectors add to it). Air the liquid took from the atmosphere is booked as
+        taken, so the total does not grow by it: "trapped" (a pocket a splash closed over,
+        core/voids.py) and "entrained" (sub-grid bubbles a splash seeded, effects/entrainment.py).
+        "volume": the resolved gas's volume."""
         p = self.particles
         phase = p.numpy("phase")
         active = p.numpy("active") == 1
@@ -593,10 +597,11 @@ class Simulation:
         vented = float(self.fields.vented_mass.numpy()[0])
         outflow = self.fields.outflow_mass.numpy()
         left = float(outflow[PHASE_GAS] + outflow[PHASE_SUBGRID] + outflow[PHASE_FOAM])  # through open walls
-        rounding = float(self.host_state.get("gas_mass_rounding", np.zeros(1))[0])
-        trapped = float(self.host_state.get("gas_mass_trapped", np.zeros(1))[0])  # air a splash closed over
-        return {**held, "vented": vented, "left": left, "rounding": rounding, "trapped": trapped,
-                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + left + rounding - trapped,
+        booked = {key: float(self.host_state.get(f"gas_mass_{key}", np.zeros(1))[0])
+                  for key in ("rounding", "trapped", "entrained")}
+        return {**held, "vented": vented, "left": left, **booked,
+                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + left + booked["rounding"]
+                - booked["trapped"] - booked["entrained"],
                 "volume": float((p.numpy("vol0") * p.numpy("J"))[(phase == PHASE_GAS) & active].sum())}
 
     def mass_budget(self) -> dict[str, dict[str, float]]:

@@ -15,6 +15,10 @@ particle for the next time step and this count with it); until then the particle
 provisional, count + capacity: the unfilled slots are zero, inactive, and every kernel skips them.
 The capacity (checkpointed) doubles after a step that seeds more; that step's excess is appended
 at the read-back, without its first sub-grid move (logged in `overflows`).
+
+The seeds' gas is air the splash took from the atmosphere: once their count is known (settle) their
+mass is booked in host_state["gas_mass_entrained"] (kg, checkpointed), which Simulation.gas_budget
+subtracts from its total like the air core/voids.py books as trapped, so the total stays conserved.
 """
 
 from __future__ import annotations
@@ -195,6 +199,7 @@ class EntrainmentStage(Stage):
         self._first = wp.zeros(n_cells, dtype=wp.int32, device=sim.device)
         self._total = wp.zeros(1, dtype=wp.int32, device=sim.device)
         sim.host_state.setdefault("entrainment_capacity", np.array([256], np.int64))  # slots per step
+        sim.host_state.setdefault("gas_mass_entrained", np.zeros(1))  # kg taken from the air (module docstring)
         self._pending = None  # (base, capacity, seed) while this step's seeds are provisional
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
         self.overflows = 0  # steps that seeded more than the capacity (not checkpointed)
@@ -260,4 +265,6 @@ class EntrainmentStage(Stage):
             sim.host_state["entrainment_capacity"] = np.array([2 * total], np.int64)
             self.overflows += 1
         sim.host_state["next_id"] = sim.host_state["next_id"] + total
+        # Every seed holds the same float32 mass (place_seeds): the booking matches the particles exactly.
+        sim.host_state["gas_mass_entrained"] = sim.host_state["gas_mass_entrained"] + total * self._bubble_values(sim).mass
         self.seeded += total

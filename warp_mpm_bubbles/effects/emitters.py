@@ -38,8 +38,9 @@ from ..core.geometry import GridGeometry
 from ..core.grid import ACTIVE, AIRBORNE, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.simulation import SimulationError
 from ..core.stage import Stage
-from ..core.transfer_kernels import clamp_to_domain, open_wall_exit
-from ..scene.capacity import draining_walls, room_and_seeded_liquid
+from ..core.boundary import clamp_to_domain, keep_in_domain, open_wall_exit
+from ..scene.capacity import MAX_INJECTED_GAUGE, draining_walls, room_and_seeded_liquid
+from ..scene.limits import max_gauge_pressure
 from ..scene.effects import GasInjector, LiquidInflow
 from .subgrid import PUSH_REACH
 
@@ -57,10 +58,12 @@ def injection_sites(
     x: wp.array(dtype=wp.vec3), phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32),
     vol0: wp.array(dtype=float), J: wp.array(dtype=float), geo: GridGeometry,
     cells: wp.array(dtype=wp.vec3i), n: int, top: wp.array(dtype=wp.int32), held: wp.array(dtype=wp.float64),
+    least_J: wp.array(dtype=float),
 ):
     """Per bubble b (its cell cells[b]): top[b], the highest liquid cell (counted upwards) in its
-    column, or without gravity 1 where liquid is in its 3^dim block; held[0]: the volume the fluid
-    holds (liquid at rest volume, flying liquid included; resolved and sub-grid gas at V0 J)."""
+    column, or without gravity 1 where liquid is in its 3^dim block. held[0]: the liquid's rest
+    volume (flying liquid included), held[1]: the gas's volume V0 J (resolved and sub-grid), held[2]:
+    its rest volume V0; least_J[0]: the gas's smallest J (its highest pressure)."""
     p = wp.tid()
     a = active[p]
     ph = phase[p]
@@ -69,7 +72,9 @@ def injection_sites(
     if ph == PHASE_LIQUID:
         wp.atomic_add(held, 0, wp.float64(vol0[p]))
     elif (ph == PHASE_GAS or ph == PHASE_SUBGRID) and a == ACTIVE:
-        wp.atomic_add(held, 0, wp.float64(vol0[p] * J[p]))
+        wp.atomic_add(held, 1, wp.float64(vol0[p] * J[p]))
+        wp.atomic_add(held, 2, wp.float64(vol0[p]))
+        wp.atomic_min(least_J, 0, J[p])
     if ph != PHASE_LIQUID or a != ACTIVE:
         return
     c = cell_of(clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
@@ -82,6 +87,15 @@ def injection_sites(
                 wp.atomic_max(top, b, geo.up_sign * c[up])
         elif wp.abs(d[0]) <= 1 and wp.abs(d[1]) <= 1 and wp.abs(d[2]) <= 1:
             wp.atomic_max(top, b, 1)
+
+
+@wp.kernel
+def compress_gas(phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), factor: float,
+                 J: wp.array(dtype=float)):
+    """Every gas particle (resolved and sub-grid) gives up the same share of its volume."""
+    p = wp.tid()
+    if active[p] == ACTIVE and (phase[p] == PHASE_GAS or phase[p] == PHASE_SUBGRID):
+        J[p] = J[p] * factor
 
 
 @wp.kernel
@@ -116,20 +130,23 @@ def make_room(
         return
     xn = wp.vec3(float(xd[0]), float(xd[1]), float(xd[2]))
     code = open_wall_exit(xn, geo, phase[p])
-    if code == ACTIVE:
-        xn = clamp_to_domain(xn, geo.domain_hi, geo.dx, dim)
+    kept = keep_in_domain(xn, wp.vec3(0.0), code, geo)  # (position, velocity): the position
     active[p] = code
-    x[p] = xn
+    x[p] = kept[0]
 
 
 @wp.kernel
-def pack_sites(top: wp.array(dtype=wp.int32), held: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.float64)):
-    """top and held in one array, for one read."""
+def pack_sites(top: wp.array(dtype=wp.int32), held: wp.array(dtype=wp.float64), least_J: wp.array(dtype=float),
+               out: wp.array(dtype=wp.float64)):
+    """top, held and least_J in one array, for one read."""
     i = wp.tid()
-    if i < top.shape[0]:
+    n = top.shape[0]
+    if i < n:
         out[i] = wp.float64(top[i])
+    elif i < n + 3:
+        out[i] = held[i - n]
     else:
-        out[i] = held[0]
+        out[i] = wp.float64(least_J[0])
 
 
 @wp.kernel
@@ -255,7 +272,7 @@ class EmitterStage(Stage):
         bubbles = [b for b, air in zip(bubbles, in_air) if not air]
         if not bubbles:
             return
-        self._check_room(sim, bubbles, held)
+        factor = self._room_factor(sim, bubbles, held)
         subgrid = sim.stage("subgrid_bubbles")
         first_new, pushes = sim.particles.count, []
         for b in bubbles:
@@ -265,12 +282,14 @@ class EmitterStage(Stage):
                 r = (3.0 * b["volume"] / (4.0 * math.pi)) ** (1.0 / 3.0)
                 subgrid.add_bubbles(sim, b["centre"][None], np.array([r]), b["velocity"][None], mat)
                 continue
-            pts = _lattice_in_ball(b["radius"], self.spacing, self.dim, b["rng"])
+            # Compressed (factor < 1), the bubble fills a smaller ball: that is the room it takes.
+            radius = b["radius"] * factor ** (1.0 / self.dim)
+            pts = _lattice_in_ball(radius, self.spacing, self.dim, b["rng"])
             positions = np.tile(b["centre"], (len(pts), 1))
             positions[:, : self.dim] += pts
             self._add(sim, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
-            pushes.append((b["centre"], b["radius"] ** self.dim, 1e30))
-        if pushes:
+            pushes.append((b["centre"], radius**self.dim, PUSH_REACH * radius))
+        if pushes and factor == 1.0:
             centres, radius_pow, reach = (np.array(col, np.float64) for col in zip(*pushes))
             dev = lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
             p = sim.particles
@@ -278,45 +297,66 @@ class EmitterStage(Stage):
                                               dev(reach, wp.float64), len(pushes), first_new, sim.geometry,
                                               p.phase, p.active, p.x])
             sim.book_outflow()  # what the push carried through an open wall
+        if factor < 1.0:
+            p = sim.particles
+            sim.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
 
-    def _sites(self, sim, centres) -> tuple[np.ndarray, float]:
-        """(in the open air, per bubble; the volume the fluid holds now): injection_sites, one read."""
+    def _sites(self, sim, centres) -> tuple[np.ndarray, dict]:
+        """(in the open air, per bubble; what the fluid holds now: "liquid" rest volume, "gas" volume V0 J
+        and "gas_rest" V0, the gas's "least_J"): injection_sites, one read."""
         g, p, n = sim.grid, sim.particles, len(centres)
         eps = 1e-4 * g.dx  # a centre outside the domain (a spread past a wall) counts as its edge cell's
         at = np.clip(np.asarray(centres, np.float64), eps, np.asarray(g.domain_size) - eps)
         cells = np.floor((at - np.asarray(g.origin)) / g.dx).astype(np.int32)
         top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=sim.device)
-        held = wp.zeros(1, dtype=wp.float64, device=sim.device)
+        held = wp.zeros(3, dtype=wp.float64, device=sim.device)
+        least_J = wp.full(1, 1.0, dtype=float, device=sim.device)
         if p.count:
             sim.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, sim.geometry,
-                                                  wp.array(cells, dtype=wp.vec3i, device=sim.device), n, top, held])
-        out = wp.zeros(n + 1, dtype=wp.float64, device=sim.device)
-        sim.launch(pack_sites, n + 1, [top, held, out])
+                                                  wp.array(cells, dtype=wp.vec3i, device=sim.device), n, top, held,
+                                                  least_J])
+        out = wp.zeros(n + 4, dtype=wp.float64, device=sim.device)
+        sim.launch(pack_sites, n + 4, [top, held, least_J, out])
         result = sim.read_host(out)
         tops = result[:n]
         up, sign = sim.up
-        if up >= 0:
-            in_air = sign * cells[:, up] > tops
-        else:
-            in_air = tops == NO_LIQUID
-        return in_air, float(result[n])
+        in_air = sign * cells[:, up] > tops if up >= 0 else tops == NO_LIQUID
+        names = ("liquid", "gas", "gas_rest", "least_J")
+        return in_air, {k: float(v) for k, v in zip(names, result[n:])}
 
-    def _check_room(self, sim, bubbles: list[dict], held: float):
-        """GasRoomError when a domain the liquid cannot leave has no room for this step's bubbles."""
-        if self.room is None:
-            return
-        need = held + sum(b["volume"] for b in bubbles)
-        if need <= self.room:
-            return
-        i = bubbles[0]["emitter"]
-        e = self.emitters[i]
-        key = f"[emitters.{i}]"
+    def _room_factor(self, sim, bubbles: list[dict], held: dict) -> float:
+        """1, or in a domain the liquid cannot leave that has no room for this step's bubbles at
+        ambient pressure, the factor every gas particle's J takes (new bubbles included) so that the
+        gas fills exactly the room the liquid leaves it: a closed box of water takes gas in only by
+        compressing the gas it holds (Boyle, p V = const, for isothermal gas; the solve alone did
+        not: gas J 0.96 where Boyle says 0.86, 1.11 of its room). GasRoomError where it is
+        impossible: no room at all, an incompressible gas, or a pressure past scene/capacity.py's
+        MAX_INJECTED_GAUGE (or the gas shapes' bound, scene/limits.py's max_gauge_pressure, where lower)."""
+        new = sum(b["volume"] for b in bubbles)
+        if self.room is None or held["liquid"] + held["gas"] + new <= self.room:
+            return 1.0
+        space, gas = self.room - held["liquid"], held["gas"] + new
+        mats = [m for m in sim.scene.materials.values() if m.is_gas]
+        key = f"[emitters.{bubbles[0]['emitter']}]"
+        if space <= 0.0 or any(m.eos == "incompressible" for m in mats):
+            why = ("the liquid fills all of it" if space <= 0.0
+                   else "the gas is incompressible (eos), so none of it can make room")
+        else:
+            factor = space / gas
+            gamma = max(m.gamma if m.eos == "adiabatic" else 1.0 for m in mats)
+            p_atm = sim.scene.domain.ambient_pressure
+            gauge = p_atm * (min(held["least_J"], 1.0) * factor) ** -gamma - p_atm  # the most compressed gas's
+            bound = min(float(max_gauge_pressure(sim.scene.materials)), MAX_INJECTED_GAUGE * p_atm)
+            if gauge <= bound:
+                return factor
+            why = (f"the gas, {gas / space:.3g} times its room, would be at {gauge:.4g} Pa gauge, above the "
+                   f"{bound:.4g} Pa that compressed gas is held to here ({MAX_INJECTED_GAUGE:g} x "
+                   f"[domain].ambient_pressure, beyond which the solve does not keep it at Boyle's pressure)")
+        stop = f", or {key}.stop <= {sim.time:.4g} s" if sim.time > self.emitters[bubbles[0]["emitter"]].start else ""
         raise GasRoomError(
-            f"t = {sim.time:.6g} s: {key} (gas_injector) releases a bubble into a domain the liquid cannot "
-            f"leave, but the liquid and gas already hold {held / self.room:.3f} of its room and the bubble "
-            f"needs {need / self.room - held / self.room:.3g} more: the gas would have to be squeezed into "
-            f"the water. Fixes: an open wall the liquid can leave through (not the top), less liquid, "
-            f"a lower {key}.rate or {key}.radius, or {key}.stop <= {sim.time:.4g}")
+            f"t = {sim.time:.6g} s: {key} (gas_injector) releases gas into a domain the liquid cannot leave "
+            f"and has no room for it: {why}. Fixes: an open wall the liquid can leave through (not the top), "
+            f"less liquid, a lower {key}.rate or {key}.radius{stop}")
 
     def _add(self, sim, positions, velocities, material: str, volume_each: float):
         size = np.array(sim.grid.domain_size)

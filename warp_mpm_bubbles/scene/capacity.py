@@ -12,7 +12,9 @@ What is counted, all per metre of slab in 2D (m^2) and in m^3 in 3D:
 - the liquid the shapes seed (later shapes overwriting earlier ones, none inside a collider);
 - what each liquid_inflow pours: its volume rate (nozzle area x speed) over its active time, from
   `start` to `stop` or to the end of the last frame.
-Gas is not counted: above the liquid it vents to the open air, which every domain keeps.
+Gas is not counted there: above the liquid it vents to the open air. `check_injection` refuses gas
+injected into a closed domain the shapes fill (no open air to vent to) beyond what compressing the
+gas there can take in (Boyle's law, up to MAX_INJECTED_GAUGE).
 
 The volumes are measured on a lattice of at most LATTICE_POINTS points (the cell centres when the
 grid is no bigger), the same lattice for the shapes and the room, so a box filled to the brim by
@@ -25,8 +27,15 @@ import math
 import numpy as np
 
 from .checks import SceneError, _g
-from .limits import inside_collider
+from .effects import GasInjector
+from .limits import inside_collider, max_gauge_pressure
 
+# The most a closed domain's gas may be compressed to take injected gas in, as a gauge pressure over the
+# ambient one. Measured in a closed 2D box (water below 7 cm, an air layer above, bubbles injected at
+# the bottom): the gas keeps its room and Boyle's pressure at 1.15 times ambient (0.3% drift in
+# 0.1 s) and 1.6 times (2.4%), but at 2.5 times it went on collapsing after the injection stopped
+# (21% of its volume in 0.1 s), its particles' pressures 7 times apart.
+MAX_INJECTED_GAUGE = 1.0
 LATTICE_POINTS = 2**20  # 25 MB of float64 points in 3D; a 1024 x 1024 grid of cells is measured exactly
 
 
@@ -143,3 +152,84 @@ def check_pour(scene):
            + (f"[output].frames <= {frames}, " if frames >= 1 else "")
            + f"or a lower {key}.speed or radius")
     raise SceneError(msg, key, poured[key_i], f"at most {max(spare, 0.0):.4g} {unit}")
+
+
+# ---------------------------------------------------------------------------- gas injected
+def _seeded_gas(scene) -> tuple[float, float]:
+    """(volume, rest volume at ambient pressure) of the gas the shapes seed outside the colliders
+    (m^3; 2D: m^2 per metre of slab). A shape at gauge pressure p holds (1 + p / p_atm)^(1/gamma) times
+    its volume at ambient pressure (its eos' law)."""
+    points, cell = _lattice(scene.domain)
+    solid = np.zeros(len(points), bool)
+    for col in scene.colliders:
+        solid |= inside_collider(col, points, scene.dim)
+    owner = np.full(len(points), -1)
+    for i, shape in enumerate(scene.shapes):
+        owner = np.where(shape.contains(points), i, owner)
+    volume = rest = 0.0
+    p_atm = scene.domain.ambient_pressure
+    for i, shape in enumerate(scene.shapes):
+        m = scene.materials[shape.material]
+        if not m.is_gas:
+            continue
+        v = np.count_nonzero((owner == i) & ~solid) * cell
+        gamma = m.gamma if m.eos == "adiabatic" else 1.0
+        volume += v
+        rest += v * ((p_atm + (shape.pressure or 0.0)) / p_atm) ** (1.0 / gamma)
+    return volume, rest
+
+
+def injected_rest_volume(scene, emitter, t_end: float) -> float:
+    """The gas an injector releases from its start to min(stop, t_end), at ambient pressure: its
+    whole bubbles times their mean volume (log-normal radius: E[r^k] = r^k exp(k^2 s^2 / 2)); 2D: the
+    disks' area, per metre of slab like the other volumes here."""
+    stop = t_end if emitter.stop is None else min(emitter.stop, t_end)
+    bubbles = math.floor(emitter.rate * max(0.0, stop - emitter.start) + 1e-9)
+    k = len(emitter.center)  # 3: spheres, 2: disks
+    size = (4.0 / 3.0 if k == 3 else 1.0) * math.pi * emitter.radius**k * math.exp(0.5 * (k * emitter.radius_spread) ** 2)
+    return bubbles * size
+
+
+def check_injection(scene):
+    """Refuse gas injected into a domain the liquid cannot leave whose shapes leave no open air (the
+    liquid and gas shapes fill the room, so nothing vents), when the gas cannot take it in: the
+    liquid fills the room, the gas is incompressible, or, all of it compressed to fit the room the
+    liquid leaves (Boyle: J = room / rest volume), it would be above MAX_INJECTED_GAUGE (or the gas
+    shapes' bound where lower). The run stops alike where the open air fills up later
+    (effects/emitters.py, GasRoomError)."""
+    injectors = [(i, e) for i, e in enumerate(scene.emitters) if isinstance(e, GasInjector)]
+    if not injectors or draining_walls(scene.domain):
+        return
+    room, solid, liquid = room_and_seeded_liquid(scene)
+    gas_volume, gas_rest = _seeded_gas(scene)
+    if liquid + gas_volume < room * (1.0 - 1e-9):
+        return  # open air in the box: bubbles reaching it vent, what stays is not predictable here
+    t_end = scene.output.frames / scene.output.fps
+    released = {i: injected_rest_volume(scene, e, t_end) for i, e in injectors}
+    i = max(released, key=released.get)  # the injector that brings the most
+    if released[i] <= 0.0:
+        return
+    key, space, unit = f"[emitters.{i}]", room - liquid, "m^2" if scene.dim == 2 else "m^3"
+    mats = [m for m in scene.materials.values() if m.is_gas]
+    gamma = max(m.gamma if m.eos == "adiabatic" else 1.0 for m in mats)
+    p_atm = scene.domain.ambient_pressure
+    max_gauge = min(float(max_gauge_pressure(scene.materials)), MAX_INJECTED_GAUGE * p_atm)
+    rest = gas_rest + sum(released.values())
+    if space <= 0.0:
+        why = "the liquid the shapes seed fills all of it"
+    elif any(m.eos == "incompressible" for m in mats):
+        why = "the gas is incompressible (eos), so none of it can make room"
+    else:
+        gauge = p_atm * (rest / space) ** gamma - p_atm
+        if gauge <= max_gauge:
+            return
+        why = (f"the gas ({gas_rest:.4g} {unit} seeded and {sum(released.values()):.4g} {unit} injected, at "
+               f"ambient pressure) squeezed into the {space:.4g} {unit} the liquid leaves would be at "
+               f"{gauge:.4g} Pa gauge, above the {max_gauge:.4g} Pa that compressed gas is held to")
+    e = scene.emitters[i]
+    raise SceneError(
+        f"{scene.source}: {key}: releases {released[i]:.4g} {unit} of gas over the run into a domain the liquid "
+        f"cannot leave, which the shapes fill (no open air for it to vent to), and has no room for it: {why}. "
+        f"Fixes: an open wall the liquid can leave through (not the top: [domain].walls = "
+        f"{{ {_example_wall(scene.domain)} = \"open\" }}), less liquid (leave open air above it), or a lower "
+        f"{key}.rate or radius", key, e.rate, "a rate the room holds")

@@ -28,7 +28,7 @@ from .limits import (
     Limit, MAX_DENSITY, MAX_FPS, MAX_FRAMES, MAX_GAMMA, MAX_GRAVITY, MAX_PRESSURE, MAX_SPEED, MAX_SURFACE_TENSION,
     MAX_VISCOSITY, MIN_AMBIENT, MIN_CELL, MIN_DENSITY, MIN_FPS, check_sampling, check_steps,
 )
-from .capacity import check_pour
+from .capacity import check_injection, check_pour
 from .solver import SolverSettings
 from .shapes import SHAPE_TYPES, Box, Cylinder, Sphere  # noqa: F401  (re-exported: scene.model.Box)
 from ..core.seeding import shape_seeds_particles
@@ -370,6 +370,7 @@ class Scene:
             self._check_reaches_domain(c, f"[colliders.{i}]", item)
         check_steps(c, self)  # a first frame needing millions of steps would run silently for hours
         check_pour(self)  # a closed domain poured over full packs the water several times over
+        check_injection(self)  # nor can a closed domain full of water take in more gas than it can compress
         # Last: the only check that generates samples (after making sure one slab of them fits).
         check_sampling(self)
         ppc, seed = self.solver.particles_per_cell, self.solver.seed

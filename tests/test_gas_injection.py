@@ -63,8 +63,9 @@ def test_bubbles_released_into_air_join_it(tmp_path):
         sim.advance_to(t)
         budget = sim.gas_budget()
         released = math.floor(rate * t + 1e-9) * RHO_AIR * math.pi * r * r * DX  # disks through the 2D slab
-        assert budget["total"] == pytest.approx(seeded["total"] + released, rel=1e-9)
-        assert budget["vented"] >= released * (1 - 1e-9)
+        # 1e-6: the vented bubbles are booked as their particles' masses, float32
+        assert budget["total"] == pytest.approx(seeded["total"] + released, rel=1e-6)
+        assert budget["vented"] >= released * (1 - 1e-6)
         assert budget["volume"] <= seeded["volume"] * (1 + 1e-6) and gas(sim)[1].sum() <= n0
 
 

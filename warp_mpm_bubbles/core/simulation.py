@@ -208,8 +208,11 @@ class Simulation:
         }
         self.host_state["next_id"] = self.host_state["next_id"] + n
         liquid = values["phase"] == PHASE_LIQUID  # booked as stored (float32), so the ledger closes exactly
-        self.host_state["liquid_added"] = self.host_state["liquid_added"] + \
-            np.asarray(values["mass"], np.float32)[liquid].astype(np.float64).sum()
+        stored = np.asarray(values["mass"], np.float32).astype(np.float64)
+        self.host_state["liquid_added"] = self.host_state["liquid_added"] + stored[liquid].sum()
+        # Gas appended (kg; conversions re-append what they retire, so an upper bound of what is held):
+        # the emitters' room bound reads nothing (effects/emitters.py, _may_fill).
+        self.host_state["gas_added"] = self.host_state.get("gas_added", np.zeros(1)) + stored[~liquid].sum()
         added = self.particles.append(values, n)
         if n:
             self.max_particle_speed = max(self.max_particle_speed,

@@ -46,11 +46,34 @@ from .subgrid import PUSH_REACH
 
 wp.set_module_options({"enable_backward": False})
 
-NO_LIQUID = -(1 << 30)  # a column's top liquid cell where it has none
+NO_LIQUID = wp.constant(-(1 << 30))  # a column's top liquid cell where it has none
 
 
 class GasRoomError(SimulationError):
     """A bubble due in a domain the liquid cannot leave, which has no room left for it."""
+
+
+@wp.func
+def in_open_air(cell: wp.vec3i, top: int, geo: GridGeometry):
+    """A bubble whose cell is above its column's highest liquid cell (without gravity: no liquid in
+    its 3^dim block) is in the open air (injection_sites measured `top`)."""
+    if geo.up_axis >= 0:
+        return geo.up_sign * cell[geo.up_axis] > top
+    return top == NO_LIQUID
+
+
+@wp.kernel
+def vent_released(first_new: int, owner: wp.array(dtype=wp.int32), cells: wp.array(dtype=wp.vec3i),
+                  top: wp.array(dtype=wp.int32), geo: GridGeometry, mass: wp.array(dtype=float),
+                  active: wp.array(dtype=wp.int32), vented_mass: wp.array(dtype=wp.float64)):
+    """The new particles (from first_new on) of bubbles released in the open air join it at once:
+    retired, their mass booked as vented."""
+    i = wp.tid()
+    b = owner[i]
+    if in_open_air(cells[b], top[b], geo):
+        p = first_new + i
+        active[p] = 0
+        wp.atomic_add(vented_mass, 0, wp.float64(mass[p]))
 
 
 @wp.kernel
@@ -101,12 +124,14 @@ def compress_gas(phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int3
 @wp.kernel
 def make_room(
     centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64), reach: wp.array(dtype=wp.float64),
+    owner: wp.array(dtype=wp.int32), cells: wp.array(dtype=wp.vec3i), top: wp.array(dtype=wp.int32),
     n: int, first_new: int, geo: GridGeometry,
     phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3),
 ):
     """Liquid and resolved gas (not the new bubbles, from first_new on) make room for each new bubble
     in turn: r' = (r^d + R^d)^(1/d) within `reach`, in float64 (effects/subgrid.py's push_liquid).
-    A particle pushed past an open wall leaves (or, liquid past an open top, flies)."""
+    A particle pushed past an open wall leaves (or, liquid past an open top, flies). Bubbles in the
+    open air (owner: each push's bubble, in cells and top) push nothing: they vent."""
     p = wp.tid()
     if p >= first_new or active[p] != ACTIVE or (phase[p] != PHASE_LIQUID and phase[p] != PHASE_GAS):
         return
@@ -114,6 +139,8 @@ def make_room(
     xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
     moved = int(0)
     for b in range(n):
+        if in_open_air(cells[owner[b]], top[owner[b]], geo):
+            continue
         d = xd - centres[b]
         if dim == 2:
             d[2] = wp.float64(0.0)
@@ -262,25 +289,36 @@ class EmitterStage(Stage):
                 "centre": self._point(e.center) + offset, "velocity": self._vector(e.velocity)}
 
     def _release(self, sim, bubbles: list[dict]):
-        """Vent the bubbles due in the open air, stop the run if the rest find no room, add them
-        and push the fluid out of the resolved ones (the module docstring)."""
-        in_air, held = self._sites(sim, [b["centre"] for b in bubbles])
-        densities = {name: m.density for name, m in sim.scene.materials.items()}
-        vented = sum(densities[b["material"]] * b["volume"] for b, air in zip(bubbles, in_air) if air)
-        if vented > 0.0:
-            sim.launch(book_vented, 1, [sim.fields.vented_mass, wp.float64(vented)])
-        bubbles = [b for b, air in zip(bubbles, in_air) if not air]
-        if not bubbles:
-            return
-        factor = self._room_factor(sim, bubbles, held)
+        """Add this step's bubbles, vent those due in the open air, push the fluid out of the others
+        (the module docstring). In a domain the liquid cannot leave that may be full (_may_fill) the
+        host reads the sites first: it needs the room left to compress the gas or stop the run."""
+        g, dev = sim.grid, lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
+        eps = 1e-4 * g.dx  # a centre outside the domain (a spread past a wall) counts as its edge cell's
+        at = np.clip(np.array([b["centre"] for b in bubbles]), eps, np.asarray(g.domain_size) - eps)
+        cells = np.floor((at - np.asarray(g.origin)) / g.dx).astype(np.int32)
+        top, held, least_J = self._sites(sim, dev(cells, wp.vec3i))
+        factor, vent_on_device = 1.0, True
+        for k, b in enumerate(bubbles):
+            b["site"] = k
+        if self.room is not None and self._may_fill(sim, bubbles):
+            in_air, measured = self._read_sites(sim, top, held, least_J, cells)
+            densities = {name: m.density for name, m in sim.scene.materials.items()}
+            vented = sum(densities[b["material"]] * b["volume"] for b, air in zip(bubbles, in_air) if air)
+            if vented > 0.0:
+                sim.launch(book_vented, 1, [sim.fields.vented_mass, wp.float64(vented)])
+            bubbles = [b for b, air in zip(bubbles, in_air) if not air]
+            if not bubbles:
+                return
+            factor, vent_on_device = self._room_factor(sim, bubbles, measured), False
         subgrid = sim.stage("subgrid_bubbles")
-        first_new, pushes = sim.particles.count, []
+        first_new, owner, pushes = sim.particles.count, [], []
         for b in bubbles:
             mat = self.materials.index(b["material"])
             if subgrid and b["radius"] < subgrid.settings.radius:
                 # A sub-grid bubble is a sphere: in 2D the one holding the disk's volume.
                 r = (3.0 * b["volume"] / (4.0 * math.pi)) ** (1.0 / 3.0)
                 subgrid.add_bubbles(sim, b["centre"][None], np.array([r]), b["velocity"][None], mat)
+                owner.append(b["site"])
                 continue
             # Compressed (factor < 1), the bubble fills a smaller ball: that is the room it takes.
             radius = b["radius"] * factor ** (1.0 / self.dim)
@@ -288,33 +326,38 @@ class EmitterStage(Stage):
             positions = np.tile(b["centre"], (len(pts), 1))
             positions[:, : self.dim] += pts
             self._add(sim, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
-            pushes.append((b["centre"], radius**self.dim, PUSH_REACH * radius))
-        if pushes and factor == 1.0:
-            centres, radius_pow, reach = (np.array(col, np.float64) for col in zip(*pushes))
-            dev = lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
-            p = sim.particles
-            sim.launch(make_room, first_new, [dev(centres, wp.vec3d), dev(radius_pow, wp.float64),
-                                              dev(reach, wp.float64), len(pushes), first_new, sim.geometry,
-                                              p.phase, p.active, p.x])
+            owner += [b["site"]] * len(pts)
+            pushes.append((b["centre"], radius**self.dim, PUSH_REACH * radius, b["site"]))
+        p, cells_dev = sim.particles, dev(cells, wp.vec3i)
+        if vent_on_device:
+            sim.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
+                                                   sim.geometry, p.mass, p.active, sim.fields.vented_mass])
+        if pushes and factor == 1.0:  # compressed, there is no room to push into: the gas gave it
+            centres, radius_pow, reach, site = (np.array(col) for col in zip(*pushes))
+            sim.launch(make_room, first_new, [dev(centres.astype(np.float64), wp.vec3d),
+                                              dev(radius_pow.astype(np.float64), wp.float64),
+                                              dev(reach.astype(np.float64), wp.float64),
+                                              dev(site.astype(np.int32), wp.int32), cells_dev, top, len(pushes),
+                                              first_new, sim.geometry, p.phase, p.active, p.x])
             sim.book_outflow()  # what the push carried through an open wall
         if factor < 1.0:
-            p = sim.particles
             sim.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
 
-    def _sites(self, sim, centres) -> tuple[np.ndarray, dict]:
-        """(in the open air, per bubble; what the fluid holds now: "liquid" rest volume, "gas" volume V0 J
-        and "gas_rest" V0, the gas's "least_J"): injection_sites, one read."""
-        g, p, n = sim.grid, sim.particles, len(centres)
-        eps = 1e-4 * g.dx  # a centre outside the domain (a spread past a wall) counts as its edge cell's
-        at = np.clip(np.asarray(centres, np.float64), eps, np.asarray(g.domain_size) - eps)
-        cells = np.floor((at - np.asarray(g.origin)) / g.dx).astype(np.int32)
+    def _sites(self, sim, cells):
+        """The device's measures of the bubbles' sites and the fluid (injection_sites): no read."""
+        p, n = sim.particles, cells.shape[0]
         top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=sim.device)
         held = wp.zeros(3, dtype=wp.float64, device=sim.device)
         least_J = wp.full(1, 1.0, dtype=float, device=sim.device)
         if p.count:
-            sim.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, sim.geometry,
-                                                  wp.array(cells, dtype=wp.vec3i, device=sim.device), n, top, held,
-                                                  least_J])
+            sim.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, sim.geometry, cells, n, top,
+                                                  held, least_J])
+        return top, held, least_J
+
+    def _read_sites(self, sim, top, held, least_J, cells) -> tuple[np.ndarray, dict]:
+        """(in the open air, per bubble; what the fluid holds now: "liquid" rest volume, "gas" volume V0 J
+        and "gas_rest" V0, the gas's "least_J"), in one read."""
+        n = len(cells)
         out = wp.zeros(n + 4, dtype=wp.float64, device=sim.device)
         sim.launch(pack_sites, n + 4, [top, held, least_J, out])
         result = sim.read_host(out)
@@ -323,6 +366,28 @@ class EmitterStage(Stage):
         in_air = sign * cells[:, up] > tops if up >= 0 else tops == NO_LIQUID
         names = ("liquid", "gas", "gas_rest", "least_J")
         return in_air, {k: float(v) for k, v in zip(names, result[n:])}
+
+    def _may_fill(self, sim, bubbles: list[dict]) -> bool:
+        """Whether the liquid, the gas and this step's bubbles may exceed the room, by bounds the host
+        knows without a read: the liquid ever added at its rest volume (closed: none left), the gas
+        ever added (Simulation.add_particles' ledger, which conversions only raise, and entrained air)
+        at the most the last step's largest gauge pressure of the resolved gas lets it expand. Sub-grid
+        bubbles take their cell's pressure, which that measure does not see: one in suction could
+        expand more; bounding them by their 0.1-atmosphere floor (10 times) read the room on most
+        steps of a splash with 5% gas, so this gate trusts the resolved gas's measure. Only where the
+        bound may exceed the room is the room read (docs/host_syncs.md)."""
+        mats = list(sim.scene.materials.values())
+        hs, p_atm = sim.host_state, sim.scene.domain.ambient_pressure
+        liquid = float(hs["liquid_added"][0]) / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
+        gas_mass = float(hs.get("gas_added", np.full(1, np.inf))[0]) + float(hs.get("gas_mass_entrained", np.zeros(1))[0])
+        gauge = float(hs.get("gas_gauge", np.full(1, np.nan))[0])
+        if math.isnan(gauge):  # the first step: the gas is as the shapes seeded it
+            gauge = max((abs(s.pressure or 0.0) for s in sim.scene.shapes), default=0.0)
+        if float(hs.get("gas_cavity", np.ones(1))[0]) != 0.0:
+            return True  # a near vacuum's gas may expand without bound
+        J = p_atm / max(p_atm - gauge, 0.1 * p_atm)
+        gas = gas_mass / min(m.density for m in mats if m.is_gas) * J
+        return liquid + gas + sum(b["volume"] for b in bubbles) > self.room
 
     def _room_factor(self, sim, bubbles: list[dict], held: dict) -> float:
         """1, or in a domain the liquid cannot leave that has no room for this step's bubbles at

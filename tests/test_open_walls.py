@@ -162,11 +162,11 @@ def test_subgrid_bubbles_carried_through_an_open_wall_are_booked(tmp_path):
                   emitters=[GasInjector("air", center=(0.185, 0.01), rate=400.0, radius=radius, spread=0.01)],
                   effects={"subgrid_bubbles": SubgridBubbles()}, output=Output(path=str(tmp_path / "b.usdc")))
     sim = Simulation(scene, "cpu")
-    bubble = np.float32(1.2 * 4.0 / 3.0 * math.pi * radius**3)  # air at ambient, as its particle holds it
+    bubble = np.float32(1.2 * math.pi * radius**2 * 0.005)  # air at ambient: a 2D bubble is a disk through the slab
     for _ in range(4):
         sim.advance_frame()
         released = int(np.asarray(sim.host_state["emitters"])[0, 1])
         gas = sim.gas_budget()
         assert gas["total"] == pytest.approx(released * float(bubble), rel=1e-6)
     held = ((sim.particles.numpy("phase") == PHASE_SUBGRID) & (sim.particles.numpy("active") == 1)).sum()
-    assert held > 0 and gas["left"] > gas["subgrid"], gas  # measured: 2.0e-7 kg left, 6.5e-8 held
+    assert held > 0 and gas["left"] > gas["subgrid"], gas  # measured: 7.2e-7 kg left, 2.8e-7 held

@@ -173,8 +173,22 @@ class LiquidInflow:
             c.fail(f"{key}.direction", list(self.direction), "must not be zero: the direction the stream flows")
         self.direction = tuple(d / norm for d in self.direction)
         self.radius = c.number(f"{key}.radius", self.radius, gt=0, le=0.5 * min(scene.domain.size))
+        self._check_nozzle_inside(c, key, scene)
         self.speed = c.number(f"{key}.speed", self.speed, gt=0)
         self.start, self.stop = _window(c, key, self.start, self.stop)
+
+    def _check_nozzle_inside(self, c: _Checker, key, scene):
+        """The nozzle (a disc across `direction`; in 2D a segment) lies inside the domain: liquid laid
+        past a wall would be pressed onto it, crowding the wall's cells (water squeezed), and the
+        stream would bring less than speed x area."""
+        size = np.asarray(scene.domain.size, float)
+        half = self.radius * np.sqrt(np.clip(1.0 - np.square(self.direction), 0.0, 1.0))  # its half-extent per axis
+        lo, hi = np.asarray(self.center) - half, np.asarray(self.center) + half
+        slack = 1e-9 * size
+        if (lo < -slack).any() or (hi > size + slack).any():
+            c.fail(f"{key}.radius", self.radius,
+                   f"the nozzle spans {_g(lo)} .. {_g(hi)}, past the domain {_g(0 * size)} .. {_g(size)}: move "
+                   f"{key}.center at least that far inside the walls, or use a smaller radius")
 
     def speed_between(self, t0: float, t1: float) -> float:
         return self.speed if _active_between(self, t0, t1) else 0.0

@@ -72,6 +72,12 @@ COMPRESSION = 0.1
 # its own law, tracked in float32 and relaxed by the volume correction like the liquid (about 1%
 # drift in the README's dam break): 2% above the box is a fluid squeezed into it.
 FILL_TOLERANCE = 0.02
+# A gas injector pushes water aside to make room for each bubble; the pushed water is crowded until
+# the volume correction relaxes it (its tau, 10 ms), so a run that injects faster than that holds
+# liquid and gas above the box for a while: measured 1.031 and 1.041 of the box at the first frame
+# (scenes 103 and 107: 220 and 110 bubbles/s, each 5-6% of the box), within it by the next. 5% is
+# the fill guard's bound (io/fill.py); feeding the bubbles to the pressure solve would remove it.
+FILL_TOLERANCE_INJECTING = 0.05
 
 
 # --------------------------------------------------------------------------------------- bounds
@@ -269,7 +275,7 @@ def check_volumes(scene, frames_meta) -> list[str]:
         if rest > box * (1.0 + over):
             problems.append(f"frame {m['frame']}: the liquid's rest volume is {rest / box:.3f} of the domain's: "
                             f"more water than the box holds, squeezed in")
-        elif rest + m["gas_volume"] > box * (1.0 + FILL_TOLERANCE):
+        elif rest + m["gas_volume"] > box * (1.0 + (FILL_TOLERANCE_INJECTING if injects else FILL_TOLERANCE)):
             problems.append(f"frame {m['frame']}: liquid ({rest / box:.3f}) and gas ({m['gas_volume'] / box:.3f}) "
                             f"fill more than the domain's volume")
         occupied = m["liquid_occupied_volume"]

@@ -39,7 +39,7 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from . import threads
+from . import sealed_regions, threads
 from .threads import Parallel, cpu_threads, line_slabs, split
 from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from .transfer_kernels import G2P, P2G, book_outflow, fastest_of_parts, split_pairs
@@ -118,6 +118,7 @@ class Simulation:
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
         self._loaded: set = set()  # kernels launched once already (_launch_parts)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
+        self.sealed = sealed_regions.SealedRegions(g.cells, self.device)  # regions no free surface reaches
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
@@ -389,21 +390,31 @@ class Simulation:
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
+        self.sealed.count(self, f.types, f.inv_rho, f.extra_diag, f.counters)
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
         counts = self.read_host(f.counters).reshape(-1, threads.CACHE_LINE_FLOATS)
         n_fluid, n_pinned, bad = int(counts[:, 0].sum()), int(counts[:, 1].sum()), int(counts[0, 2])
+        regions, sealed = int(counts[0, sealed_regions.SLOT_REGIONS]), int(counts[0, sealed_regions.SLOT_SEALED])
         if bad:
             raise SimulationError(
                 f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {bad} particles entered p2g with a "
                 f"non-finite position or velocity. Likely cause: the previous step diverged (a time "
                 f"step too large for the scene: lower [solver].cfl or set [solver].max_dt) or NaN/Inf "
                 f"in the initial state.")
+        if counts[0, sealed_regions.SLOT_UNSETTLED]:  # a winding region: sweep on (reads; rare)
+            regions, sealed = self.sealed.finish_labels(self, f.types, f.inv_rho, f.extra_diag, f.counters)
+        singular = n_pinned == 0  # one region, sealed (a closed tank full of liquid): project out the constant
+        if sealed and regions > 1:  # each sealed region solvable on its own, the system nonsingular
+            self.sealed.settle(self, f.types, f.rhs, f.diag, f.extra_diag)
+            singular = False
         info = self.solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
-            preconditioner=settings.preconditioner, singular=n_pinned == 0, n_fluid=n_fluid,
+            preconditioner=settings.preconditioner, singular=singular, n_fluid=n_fluid,
             region=r.box if r.enabled else None,
         )
+        if sealed and regions > 1:
+            self.sealed.center(self, f.types, f.pressure)
         self.stats.record(info)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],

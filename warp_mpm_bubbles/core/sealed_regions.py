@@ -25,17 +25,20 @@ right-hand side), so the whole system is nonsingular and needs no projection.
 
 from __future__ import annotations
 
+import math
+
 import warp as wp
 
 from .grid import FLUID
+from .threads import SPLIT_CELLS, split
 from .lines import Lines, line_first, line_end, on_line
 
 # Where the counts go in row 0 of the step's counters (the slots after the nonfinite copy).
 SLOT_REGIONS, SLOT_SEALED, SLOT_UNSETTLED = 3, 4, 5
-# Rounds of sweeps (each along every axis, both ways) before the counts: two settle any region a
-# line in one axis then a line in another reaches; the last round records whether a label moved,
-# and only then does the host sweep on, reading after each round.
-ROUNDS = 3
+# Rounds of sweeps (each along every axis, both ways) before the counts. One settles a box-shaped
+# region (a line along x, then y, then z reaches every cell); two, most others. The count checks
+# every coupled face, and only if two labels still differ does the host sweep on, with reads.
+ROUNDS = 2
 
 
 @wp.func
@@ -66,85 +69,89 @@ def start_labels(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.
         pinned[c[0], c[1], c[2]] = 0
 
 
-@wp.func
-def joined(types: wp.array3d(dtype=wp.int32), weight: wp.array3d(dtype=float), c: wp.vec3i, axis: int):
-    """Cells c - e_axis and c are both fluid and coupled (the face between them, face c, has weight)."""
-    b = c
-    b[axis] = c[axis] - 1
-    return (types[c[0], c[1], c[2]] == FLUID and types[b[0], b[1], b[2]] == FLUID
-            and weight[c[0], c[1], c[2]] > 0.0)
-
-
 @wp.kernel
 def sweep_labels(types: wp.array3d(dtype=wp.int32), weight: wp.array3d(dtype=float),
-                 labels: wp.array3d(dtype=wp.int32), moved: wp.array(dtype=wp.int32), slot: int, box: Lines):
-    """Each thread walks its whole line along box.axis (the axis of `weight`'s faces) forward, then
-    back, giving each fluid cell the smallest label of the coupled run it lies in; moved[slot] = 1
-    if a label changed."""
+                 labels: wp.array3d(dtype=wp.int32), box: Lines):
+    """Each thread walks its whole line along box.axis (the axis of `weight`'s faces; face s lies
+    between cells s - 1 and s) forward, then back, giving each fluid cell the smallest label of the
+    run of coupled cells it lies in."""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     a = box.axis
     lo, hi = first[a], line_end(box, first)
-    changed = int(0)
-    for s in range(lo + 1, hi):
+    carry = int(-1)  # the previous cell's label while it is fluid, else -1
+    for s in range(lo, hi):
         c = on_line(first, a, s)
-        if joined(types, weight, c, a):
-            p = on_line(first, a, s - 1)
-            if labels[p[0], p[1], p[2]] < labels[c[0], c[1], c[2]]:
-                labels[c[0], c[1], c[2]] = labels[p[0], p[1], p[2]]
-                changed = 1
-    for s in range(hi - 1, lo, -1):
+        lab = int(-1)
+        if types[c[0], c[1], c[2]] == FLUID:
+            lab = labels[c[0], c[1], c[2]]
+            if carry >= 0 and carry < lab and weight[c[0], c[1], c[2]] > 0.0:
+                lab = carry
+                labels[c[0], c[1], c[2]] = lab
+        carry = lab
+    carry = int(-1)
+    for s in range(hi - 1, lo - 1, -1):
         c = on_line(first, a, s)
-        if joined(types, weight, c, a):
-            p = on_line(first, a, s - 1)
-            if labels[c[0], c[1], c[2]] < labels[p[0], p[1], p[2]]:
-                labels[p[0], p[1], p[2]] = labels[c[0], c[1], c[2]]
-                changed = 1
-    if changed != 0:
-        wp.atomic_max(moved, slot, 1)
+        lab = int(-1)
+        if types[c[0], c[1], c[2]] == FLUID:
+            lab = labels[c[0], c[1], c[2]]
+            f = on_line(first, a, s + 1)  # the face to the cell walked before
+            if carry >= 0 and carry < lab and weight[f[0], f[1], f[2]] > 0.0:
+                lab = carry
+                labels[c[0], c[1], c[2]] = lab
+        carry = lab
 
 
 @wp.func
-def is_pinned(types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dtype=float),
-              inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=float),
-              inv_rho_w: wp.array3d(dtype=float), c: wp.vec3i, dim: int):
-    """Row c of the system is strictly diagonally dominant: a gas term, or a face of weight to a cell
-    that is not fluid (Dirichlet p = 0; a solid face has no weight)."""
-    if extra_diag[c[0], c[1], c[2]] > 0.0:
-        return True
-    for a in range(dim):
-        for side in range(2):
-            n = c
-            n[a] = c[a] + 2 * side - 1
-            f = c
-            f[a] = c[a] + side
-            w = float(0.0)
-            if a == 0:
-                w = inv_rho_u[f[0], f[1], f[2]]
-            elif a == 1:
-                w = inv_rho_v[f[0], f[1], f[2]]
-            else:
-                w = inv_rho_w[f[0], f[1], f[2]]
-            if w > 0.0 and types[n[0], n[1], n[2]] != FLUID:
-                return True
-    return False
+def face_weight(inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=float),
+                inv_rho_w: wp.array3d(dtype=float), f: wp.vec3i, axis: int):
+    if axis == 0:
+        return inv_rho_u[f[0], f[1], f[2]]
+    if axis == 1:
+        return inv_rho_v[f[0], f[1], f[2]]
+    return inv_rho_w[f[0], f[1], f[2]]
 
 
 @wp.kernel
-def mark_pinned_roots(types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dtype=float),
-                      inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=float),
-                      inv_rho_w: wp.array3d(dtype=float), labels: wp.array3d(dtype=wp.int32), dim: int,
-                      pinned: wp.array3d(dtype=wp.int32), box: Lines):
-    """pinned[root] = 1 for the root (the cell its label names) of each region with a pinned row."""
+def check_and_mark(types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dtype=float),
+                   inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=float),
+                   inv_rho_w: wp.array3d(dtype=float), labels: wp.array3d(dtype=wp.int32), dim: int,
+                   pinned: wp.array3d(dtype=wp.int32), counters: wp.array(dtype=wp.int32), box: Lines):
+    """counters[SLOT_UNSETTLED] = 1 if two coupled fluid cells still differ in label (the sweeps go on);
+    pinned[root] = 1 for the root (the cell its label names) of each region with a pinned row: a gas
+    term, or a face of weight to a cell that is not fluid (Dirichlet p = 0; a solid face has none)."""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     shape = wp.vec3i(types.shape[0], types.shape[1], types.shape[2])
     for s in range(first[box.axis], line_end(box, first)):
         c = on_line(first, box.axis, s)
-        if types[c[0], c[1], c[2]] == FLUID:
-            if is_pinned(types, extra_diag, inv_rho_u, inv_rho_v, inv_rho_w, c, dim):
-                r = cell_of(labels[c[0], c[1], c[2]], shape)
-                wp.atomic_max(pinned, r[0], r[1], r[2], 1)
+        if types[c[0], c[1], c[2]] != FLUID:
+            continue
+        lab = labels[c[0], c[1], c[2]]
+        pin = extra_diag[c[0], c[1], c[2]] > 0.0
+        for a in range(dim):
+            for side in range(2):
+                n = c
+                n[a] = c[a] + 2 * side - 1
+                f = c
+                f[a] = c[a] + side
+                if face_weight(inv_rho_u, inv_rho_v, inv_rho_w, f, a) > 0.0:
+                    if types[n[0], n[1], n[2]] != FLUID:
+                        pin = True
+                    elif labels[n[0], n[1], n[2]] != lab:
+                        wp.atomic_max(counters, SLOT_UNSETTLED, 1)
+        if pin:
+            r = cell_of(lab, shape)
+            wp.atomic_max(pinned, r[0], r[1], r[2], 1)
+
+
+@wp.kernel
+def clear_pinned(pinned: wp.array3d(dtype=wp.int32), box: Lines):
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        pinned[c[0], c[1], c[2]] = 0
 
 
 @wp.kernel
@@ -224,17 +231,25 @@ def pin_roots(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int
                 extra_diag[c[0], c[1], c[2]] = extra_diag[c[0], c[1], c[2]] + d
                 diag[c[0], c[1], c[2]] = d + d
 
-def axis_lines(lo, hi, axis: int):
-    """A Lines box [lo, hi) whose threads each walk a whole line along `axis` (on any device: a sweep
-    carries the label along the line), and its launch dims."""
-    box = Lines()
-    box.lo, box.hi = wp.vec3i(*lo), wp.vec3i(*hi)
-    box.axis = axis
+def axis_lines(lo, hi, axis: int, threads: int = 1) -> list:
+    """Lines boxes covering [lo, hi) whose threads each walk a whole line along `axis` (on any device:
+    a sweep carries the label along the line), with their launch dims: slabs across another axis,
+    one a CPU thread, when the box holds SPLIT_CELLS or more (no line is cut, so the same result)."""
     extent = [max(int(h) - int(l), 0) for l, h in zip(lo, hi)]  # noqa: E741
-    box.length = max(extent[axis], 1)
-    dims = list(extent)
-    dims[axis] = 1 if extent[axis] else 0
-    return box, tuple(dims)
+    across = 1 if axis == 0 else 0
+    parts = threads if math.prod(extent) >= SPLIT_CELLS else 1
+    out = []
+    for a, b in zip(cuts := split(lo[across], hi[across], max(1, min(parts, extent[across]))), cuts[1:]):
+        box = Lines()
+        slab_lo, slab_hi = list(lo), list(hi)
+        slab_lo[across], slab_hi[across] = a, b
+        box.lo, box.hi = wp.vec3i(*slab_lo), wp.vec3i(*slab_hi)
+        box.axis, box.length = axis, max(extent[axis], 1)
+        dims = [h - l for l, h in zip(slab_lo, slab_hi)]  # noqa: E741
+        dims[axis] = 1 if extent[axis] else 0
+        if 0 not in dims:
+            out.append((box, tuple(dims)))
+    return out
 
 
 class SealedRegions:
@@ -245,44 +260,40 @@ class SealedRegions:
         cells = lambda dtype: wp.zeros(shape, dtype=dtype, device=device)  # noqa: E731
         self.labels, self.pinned, self.sizes = cells(wp.int32), cells(wp.int32), cells(wp.int32)
         self.sums = cells(wp.float64)
-        self.moved = wp.zeros(1, dtype=wp.int32, device=device)
 
-    def _sweeps(self, sim, types, inv_rho, moved, slot: int):
+    def _round(self, sim, types, inv_rho):
         """One round: a sweep along each axis of the grid box (each thread its own whole line)."""
         lo, hi = sim.region.box
         for a in sim.grid.axes:
-            box, dims = axis_lines(lo, hi, a)
-            if 0 not in dims:
-                sim.launch(sweep_labels, dims, [types, inv_rho[a], self.labels, moved, slot, box])
-
-    def count(self, sim, types, inv_rho, extra_diag, counters):
-        """Label the fluid's regions and add the counts of regions, sealed regions and whether the
-        labels were still moving in the last round into counters' row 0 (SLOT_*)."""
-        lines = sim.region.cell_lines
-        sim.launch_lines(start_labels, lines, [types, self.labels, self.pinned])
-        for round_ in range(ROUNDS):
-            last = round_ == ROUNDS - 1
-            self._sweeps(sim, types, inv_rho, counters if last else self.moved, SLOT_UNSETTLED if last else 0)
-        self._tally(sim, types, inv_rho, extra_diag, counters)
+            slabs = axis_lines(lo, hi, a, sim.parallel.threads)
+            if slabs:
+                sim._launch_parts(sweep_labels, [(d, [types, inv_rho[a], self.labels, box]) for box, d in slabs])
 
     def _tally(self, sim, types, inv_rho, extra_diag, counters):
         lines = sim.region.cell_lines
-        sim.launch_lines(mark_pinned_roots, lines, [types, extra_diag, *inv_rho, self.labels, sim.grid.dim, self.pinned])
+        sim.launch_lines(check_and_mark, lines, [types, extra_diag, *inv_rho, self.labels, sim.grid.dim, self.pinned,
+                                                 counters])
         sim.launch_lines(count_regions, lines, [types, self.labels, self.pinned, counters])
 
-    def finish_labels(self, sim, types, inv_rho, extra_diag, counters) -> tuple[int, int]:
-        """Sweep until no label moves (a region winding past ROUNDS turns), reading after each round;
-        then count again. Returns (regions, sealed regions)."""
-        while True:
-            self.moved.zero_()
-            self._sweeps(sim, types, inv_rho, self.moved, 0)
-            if not int(sim.read_host(self.moved)[0]):
-                break
-        self.pinned.zero_()
-        counters.zero_()
+    def count(self, sim, types, inv_rho, extra_diag, counters):
+        """Label the fluid's regions and add into counters' row 0 (SLOT_*) the counts of regions and
+        sealed regions, and whether the labels are unsettled (then the counts are not yet right)."""
+        sim.launch_lines(start_labels, sim.region.cell_lines, [types, self.labels, self.pinned])
+        for _ in range(ROUNDS):
+            self._round(sim, types, inv_rho)
         self._tally(sim, types, inv_rho, extra_diag, counters)
-        row = sim.read_host(counters)
-        return int(row[SLOT_REGIONS]), int(row[SLOT_SEALED])
+
+    def finish_labels(self, sim, types, inv_rho, extra_diag, counters) -> tuple[int, int]:
+        """Sweep on, a round and a count at a time, each with a read (a region winding past what
+        ROUNDS settle; rare), until the labels settle. Returns (regions, sealed regions)."""
+        while True:
+            self._round(sim, types, inv_rho)
+            sim.launch_lines(clear_pinned, sim.region.cell_lines, [self.pinned])
+            counters.zero_()
+            self._tally(sim, types, inv_rho, extra_diag, counters)
+            row = sim.read_host(counters)
+            if not row[SLOT_UNSETTLED]:
+                return int(row[SLOT_REGIONS]), int(row[SLOT_SEALED])
 
     def _remove_means(self, sim, types, field):
         lines = sim.region.cell_lines

@@ -12,6 +12,7 @@ import warp as wp
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene
 from warp_mpm_bubbles.cli import main
 from warp_mpm_bubbles.core import sealed_regions
+from warp_mpm_bubbles.core.grid import EMPTY, FLUID, SOLID_NO_SLIP
 from warp_mpm_bubbles.core.simulation import Simulation, SimulationError
 from warp_mpm_bubbles.io.usd_output import StageWriter
 from warp_mpm_bubbles.scene.effects import Collider
@@ -136,3 +137,92 @@ def test_run_that_goes_non_finite_stops_with_exit_1(tmp_path, monkeypatch, capsy
     assert main(["run", str(tmp_path / "nan.toml"), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "velocities contains NaN or inf" in err and "frames 0-1 are written and kept" in err
+
+
+def reference_regions(types, weights, extra, dim):
+    """(regions, sealed regions) of a random system by a plain flood fill: cells joined by faces of
+    weight; a region is pinned by a gas term or a face of weight to a cell that is not fluid."""
+    fluid = types == FLUID
+    seen = np.zeros(types.shape, bool)
+    regions = sealed = 0
+    for start in map(tuple, np.argwhere(fluid)):
+        if seen[start]:
+            continue
+        regions += 1
+        pinned, stack, seen[start] = False, [start], True
+        while stack:
+            c = stack.pop()
+            pinned |= extra[c] > 0
+            for a in range(dim):
+                for side in (0, 1):
+                    n, f = list(c), list(c)
+                    n[a] += 2 * side - 1
+                    f[a] += side
+                    n, f = tuple(n), tuple(f)
+                    if weights[a][f] <= 0:
+                        continue
+                    if not fluid[n]:
+                        pinned = True
+                    elif not seen[n]:
+                        seen[n] = True
+                        stack.append(n)
+        sealed += not pinned
+    return regions, sealed
+
+
+def serpentine(shape, rng):
+    """A corridor winding through walls at every other x, open at alternate ends, and a pocket."""
+    types = np.full(shape, FLUID)
+    for i in range(2, shape[0] - 2, 2):
+        types[i] = SOLID_NO_SLIP
+        types[i, 2 if i % 4 else shape[1] - 3] = FLUID
+    types[1, 2] = SOLID_NO_SLIP  # the corner cell (1, 1): a pocket
+    return types
+
+
+def random_maze(shape, rng):
+    return rng.choice([FLUID, EMPTY, SOLID_NO_SLIP], size=shape, p=[0.62, 0.01, 0.37])
+
+
+@pytest.mark.parametrize("dim,seed,maze", [(2, 0, random_maze), (2, 1, random_maze), (3, 2, random_maze),
+                                           (3, 3, random_maze), (2, 4, serpentine)])
+def test_region_counts_match_a_flood_fill(tmp_path, dim, seed, maze):
+    # Random cell types and face weights, and a winding corridor (which needs more than the two
+    # rounds of sweeps a step does without a read): the device's counts against a flood fill.
+    size = (0.16, 0.12, 0.1)[:dim]
+    scene = Scene(domain=Domain(size=size, cell_size=0.01), materials={"water": Material("water")},
+                  shapes=[Box("water", (0.0,) * dim, tuple(s / 2 for s in size))],
+                  output=Output(path=str(tmp_path / "r.usdc")))
+    sim = Simulation(scene, "cpu")
+    sim.region.whole_grid()
+    rng = np.random.default_rng(seed)
+    shape = sim.grid.cells
+    interior = np.zeros(shape, bool)
+    interior[tuple(slice(1, n - 1) if n > 1 else slice(None) for n in shape)] = True
+    types = np.where(interior, maze(shape, rng), SOLID_NO_SLIP)
+    weights = []  # random, some zero; none on a face of a solid cell (as the grid stage leaves them)
+    for a, arr in enumerate(sim.fields.inv_rho):
+        solid = np.ones(arr.shape, bool)
+        if a < dim:
+            pad = np.pad(types == SOLID_NO_SLIP, [(1, 1) if k == a else (0, 0) for k in range(3)], constant_values=True)
+            solid = np.take(pad, range(arr.shape[a]), axis=a) | np.take(pad, range(1, arr.shape[a] + 1), axis=a)
+        cut = rng.random(arr.shape) >= 0.9 if maze is random_maze else False
+        weights.append(np.where(solid | cut, 0.0, 1.0).astype(np.float32))
+    extra = np.where(rng.random(shape) < (0.002 if maze is random_maze else 0.0), 1.0, 0.0).astype(np.float32)
+    f = sim.fields
+    f.types.assign(types.astype(np.int32))
+    for w, arr in zip(weights, f.inv_rho):
+        arr.assign(w)
+    f.extra_diag.assign(extra)
+    f.counters.zero_()
+    sim.sealed.count(sim, f.types, f.inv_rho, f.extra_diag, f.counters)
+    row = f.counters.numpy().copy()  # on the CPU a view, which finish_labels rewrites
+    got = (int(row[sealed_regions.SLOT_REGIONS]), int(row[sealed_regions.SLOT_SEALED]))
+    if row[sealed_regions.SLOT_UNSETTLED]:
+        got = sim.sealed.finish_labels(sim, f.types, f.inv_rho, f.extra_diag, f.counters)
+    expected = reference_regions(types, weights, extra, dim)
+    if maze is serpentine:
+        assert row[sealed_regions.SLOT_UNSETTLED] and expected == (3, 3)  # the corridor, column 1, the pocket
+    else:  # sealed and pinned regions, several of each
+        assert expected[1] > 2 and expected[0] > expected[1]
+    assert got == expected

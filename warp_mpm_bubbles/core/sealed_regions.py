@@ -285,8 +285,10 @@ class SealedRegions:
 
     def finish_labels(self, sim, types, inv_rho, extra_diag, counters) -> tuple[int, int]:
         """Sweep on, a round and a count at a time, each with a read (a region winding past what
-        ROUNDS settle; rare), until the labels settle. Returns (regions, sealed regions)."""
-        while True:
+        ROUNDS settle; rare), until the labels settle. Returns (regions, sealed regions). Each round
+        that finds two coupled labels apart lowers one, so a path through every cell of the box ends
+        it; more rounds than that would be a bug here, which must not hang the run."""
+        for _ in range(math.prod(sim.region.cells)):
             self._round(sim, types, inv_rho)
             sim.launch_lines(clear_pinned, sim.region.cell_lines, [self.pinned])
             counters.zero_()
@@ -294,6 +296,7 @@ class SealedRegions:
             row = sim.read_host(counters)
             if not row[SLOT_UNSETTLED]:
                 return int(row[SLOT_REGIONS]), int(row[SLOT_SEALED])
+        raise RuntimeError("the sealed-region labels did not settle (a bug in core/sealed_regions.py)")
 
     def _remove_means(self, sim, types, field):
         lines = sim.region.cell_lines

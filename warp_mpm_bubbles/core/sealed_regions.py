@@ -20,7 +20,8 @@ others, each sealed region is made solvable where it is: its mean right-hand sid
 least-squares answer: a squeezed pocket is compressed evenly, which is all an incompressible solve
 can say of a volume a solid takes away) and its root cell (the smallest index) gets its own
 diagonal once more, which pins the region's constant (p = 0 there, exactly, for a consistent
-right-hand side), so the whole system is nonsingular and needs no projection.
+right-hand side), so the whole system is nonsingular and needs no projection. After the solve each
+sealed region's pressure is shifted to mean zero, the level the projection gives a closed tank.
 """
 
 from __future__ import annotations
@@ -275,13 +276,14 @@ class SealedRegions:
                                                  counters])
         sim.launch_lines(count_regions, lines, [types, self.labels, self.pinned, counters])
 
-    def count(self, sim, types, inv_rho, extra_diag, counters):
+    def count(self, sim, fields):
         """Label the fluid's regions and add into counters' row 0 (SLOT_*) the counts of regions and
         sealed regions, and whether the labels are unsettled (then the counts are not yet right)."""
+        types, inv_rho = fields.types, fields.inv_rho
         sim.launch_lines(start_labels, sim.region.cell_lines, [types, self.labels, self.pinned])
         for _ in range(ROUNDS):
             self._round(sim, types, inv_rho)
-        self._tally(sim, types, inv_rho, extra_diag, counters)
+        self._tally(sim, types, inv_rho, fields.extra_diag, fields.counters)
 
     def finish_labels(self, sim, types, inv_rho, extra_diag, counters) -> tuple[int, int]:
         """Sweep on, a round and a count at a time, each with a read (a region winding past what
@@ -304,13 +306,21 @@ class SealedRegions:
         sim.launch(sum_sealed, lines[1], [types, self.labels, self.pinned, field, self.sums, self.sizes, lines[0]])
         sim.launch_lines(subtract_sealed_mean, lines, [types, self.labels, self.pinned, self.sums, self.sizes, field])
 
-    def settle(self, sim, types, rhs, diag, extra_diag):
-        """Make each sealed region solvable on its own (the module's docstring): mean rhs removed,
-        root pinned."""
-        self._remove_means(sim, types, rhs)
-        sim.launch_lines(pin_roots, sim.region.cell_lines, [types, self.labels, self.pinned, diag, extra_diag])
+    def settle(self, sim, fields, counts) -> bool:
+        """After the counts are read (counts: row 0 of the counters): with a sealed region among
+        others, make each sealed region solvable on its own (the module's docstring: mean rhs
+        removed, root pinned) and return True; else leave the system as it is and return False."""
+        regions, sealed = int(counts[SLOT_REGIONS]), int(counts[SLOT_SEALED])
+        if counts[SLOT_UNSETTLED]:  # a region winding past ROUNDS: sweep on, with reads (rare)
+            regions, sealed = self.finish_labels(sim, fields.types, fields.inv_rho, fields.extra_diag, fields.counters)
+        if not sealed or regions == 1:
+            return False
+        self._remove_means(sim, fields.types, fields.rhs)
+        sim.launch_lines(pin_roots, sim.region.cell_lines, [fields.types, self.labels, self.pinned, fields.diag,
+                                                            fields.extra_diag])
+        return True
 
-    def center(self, sim, types, pressure):
-        """After the solve: each sealed region's pressure to mean zero, the level the solver gives a
-        closed tank (one sealed region), rather than the root's zero."""
-        self._remove_means(sim, types, pressure)
+    def center(self, sim, fields):
+        """After a solve that settle() prepared: each sealed region's pressure to mean zero, the level
+        the solver gives a closed tank (one sealed region), rather than the root's zero."""
+        self._remove_means(sim, fields.types, fields.pressure)

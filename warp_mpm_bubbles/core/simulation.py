@@ -390,31 +390,28 @@ class Simulation:
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
-        self.sealed.count(self, f.types, f.inv_rho, f.extra_diag, f.counters)
+        self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
         counts = self.read_host(f.counters).reshape(-1, threads.CACHE_LINE_FLOATS)
         n_fluid, n_pinned, bad = int(counts[:, 0].sum()), int(counts[:, 1].sum()), int(counts[0, 2])
-        regions, sealed = int(counts[0, sealed_regions.SLOT_REGIONS]), int(counts[0, sealed_regions.SLOT_SEALED])
         if bad:
             raise SimulationError(
                 f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {bad} particles entered p2g with a "
                 f"non-finite position or velocity. Likely cause: the previous step diverged (a time "
                 f"step too large for the scene: lower [solver].cfl or set [solver].max_dt) or NaN/Inf "
                 f"in the initial state.")
-        if counts[0, sealed_regions.SLOT_UNSETTLED]:  # a winding region: sweep on (reads; rare)
-            regions, sealed = self.sealed.finish_labels(self, f.types, f.inv_rho, f.extra_diag, f.counters)
-        singular = n_pinned == 0  # one region, sealed (a closed tank full of liquid): project out the constant
-        if sealed and regions > 1:  # each sealed region solvable on its own, the system nonsingular
-            self.sealed.settle(self, f.types, f.rhs, f.diag, f.extra_diag)
-            singular = False
+        # A sealed region beside others is made solvable on its own; else a closed tank full of liquid
+        # (one sealed region) is singular as a whole, and the solver projects out the constant.
+        apart = self.sealed.settle(self, f, counts[0])
+        singular = n_pinned == 0 and not apart
         info = self.solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
             preconditioner=settings.preconditioner, singular=singular, n_fluid=n_fluid,
             region=r.box if r.enabled else None,
         )
-        if sealed and regions > 1:
-            self.sealed.center(self, f.types, f.pressure)
+        if apart:
+            self.sealed.center(self, f)
         self.stats.record(info)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],

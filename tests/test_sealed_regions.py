@@ -226,3 +226,17 @@ def test_region_counts_match_a_flood_fill(tmp_path, dim, seed, maze):
     else:  # sealed and pinned regions, several of each
         assert expected[1] > 2 and expected[0] > expected[1]
     assert got == expected
+
+
+def test_collider_pushed_into_a_full_closed_box_stops_the_run(tmp_path):
+    # A piston 0.04 m wide entering a closed box full of water at 0.2 m/s pushes in 0.008 m^2/s
+    # (80 cells a second) that the water has no room for: the run stops once 5% of the fluid's
+    # cells have been pushed in, naming what to change, instead of squeezing the water to 0.43.
+    piston = Collider("box", center=(0.05, 0.12), size=(0.04, 0.06), velocity=(0.0, -0.2), stop=0.1)
+    sim = Simulation(tank(tmp_path, 0.1, [piston], size=(0.1, 0.1), dx=0.01, walls="free_slip"), "cpu")
+    with pytest.raises(SimulationError, match=r"colliders have pushed .* into liquid that fills a closed region.*"
+                                              r"\[domain\]\.walls.*\[colliders\.N\]\.stop"):
+        run_to(sim, 0.1)
+    assert 0.04 < sim.time < 0.08
+    # The booking is the piston's swept volume (the faces around the sealed water telescope to it).
+    assert sim.sealed.squeezed.numpy()[0] / 1000 == pytest.approx(80 * sim.time, rel=0.02)

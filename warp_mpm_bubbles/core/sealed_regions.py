@@ -30,6 +30,7 @@ import math
 
 import warp as wp
 
+from .cells import cell_divergence
 from .grid import FLUID
 from .threads import SPLIT_CELLS, split
 from .lines import Lines, line_first, line_end, on_line
@@ -40,6 +41,14 @@ SLOT_REGIONS, SLOT_SEALED, SLOT_UNSETTLED = 3, 4, 5
 # region (a line along x, then y, then z reaches every cell); two, most others. The count checks
 # every coupled face, and only if two labels still differ does the host sweep on, with reads.
 ROUNDS = 2
+# Where the solids' push into sealed liquid so far goes (thousandths of a cell's volume), and how much
+# of the fluid's volume it may reach before the run stops. Sealed liquid has no room: what a solid
+# pushes in (a piston entering a full closed box, a ball closing a corner) is compressed away, which
+# the volume correction then fights. A rigid collider inside the liquid pushes in nothing (the flux
+# through a closed solid surface moving rigidly is zero); only one that enters the domain or closes
+# on a wall does. A ball squeezing a corner cell takes about one cell; 5% of the fluid is a piston
+# with nowhere for the liquid to go, a fifth of the way to the 10% squeeze that is plainly wrong.
+SLOT_SQUEEZED, SQUEEZE_LIMIT = 6, 0.05
 
 
 @wp.func
@@ -232,6 +241,30 @@ def pin_roots(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int
                 extra_diag[c[0], c[1], c[2]] = extra_diag[c[0], c[1], c[2]] + d
                 diag[c[0], c[1], c[2]] = d + d
 
+@wp.kernel
+def sum_sealed_inflow(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+                      pinned: wp.array3d(dtype=wp.int32), vel_u: wp.array3d(dtype=float),
+                      vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float), dim: int,
+                      scale: wp.float64, squeezed: wp.array(dtype=wp.float64), box: Lines):
+    """squeezed[0] -= scale * the net outflow of the sealed cells: the faces between two of them
+    cancel, so what is left is what the solid faces around the sealed regions push in. One launch,
+    never split (on the CPU its threads run in order, so the float sum does too)."""
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    shape = wp.vec3i(types.shape[0], types.shape[1], types.shape[2])
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        if types[c[0], c[1], c[2]] == FLUID:
+            r = cell_of(labels[c[0], c[1], c[2]], shape)
+            if pinned[r[0], r[1], r[2]] == 0:
+                wp.atomic_add(squeezed, 0, -scale * wp.float64(cell_divergence(vel_u, vel_v, vel_w, c, dim)))
+
+
+@wp.kernel
+def report_squeezed(squeezed: wp.array(dtype=wp.float64), counters: wp.array(dtype=wp.int32), slot: int):
+    counters[slot] = int(wp.clamp(squeezed[0], wp.float64(0.0), wp.float64(2.0e9)))
+
+
 def axis_lines(lo, hi, axis: int, threads: int = 1) -> list:
     """Lines boxes covering [lo, hi) whose threads each walk a whole line along `axis` (on any device:
     a sweep carries the label along the line), with their launch dims: slabs across another axis,
@@ -261,6 +294,7 @@ class SealedRegions:
         cells = lambda dtype: wp.zeros(shape, dtype=dtype, device=device)  # noqa: E731
         self.labels, self.pinned, self.sizes = cells(wp.int32), cells(wp.int32), cells(wp.int32)
         self.sums = cells(wp.float64)
+        self.squeezed = wp.zeros(1, dtype=wp.float64, device=device)  # thousandths of a cell, this run
 
     def _round(self, sim, types, inv_rho):
         """One round: a sweep along each axis of the grid box (each thread its own whole line)."""
@@ -284,6 +318,7 @@ class SealedRegions:
         for _ in range(ROUNDS):
             self._round(sim, types, inv_rho)
         self._tally(sim, types, inv_rho, fields.extra_diag, fields.counters)
+        sim.launch(report_squeezed, 1, [self.squeezed, fields.counters, SLOT_SQUEEZED])
 
     def finish_labels(self, sim, types, inv_rho, extra_diag, counters) -> tuple[int, int]:
         """Sweep on, a round and a count at a time, each with a read (a region winding past what
@@ -306,19 +341,37 @@ class SealedRegions:
         sim.launch(sum_sealed, lines[1], [types, self.labels, self.pinned, field, self.sums, self.sizes, lines[0]])
         sim.launch_lines(subtract_sealed_mean, lines, [types, self.labels, self.pinned, self.sums, self.sizes, field])
 
-    def settle(self, sim, fields, counts) -> bool:
+    def settle(self, sim, fields, counts, dt: float) -> bool:
         """After the counts are read (counts: row 0 of the counters): with a sealed region among
         others, make each sealed region solvable on its own (the module's docstring: mean rhs
-        removed, root pinned) and return True; else leave the system as it is and return False."""
+        removed, root pinned) and return True; else leave the system as it is and return False.
+        With any sealed region, book what the solids push into it this step (SLOT_SQUEEZED)."""
         regions, sealed = int(counts[SLOT_REGIONS]), int(counts[SLOT_SEALED])
         if counts[SLOT_UNSETTLED]:  # a region winding past ROUNDS: sweep on, with reads (rare)
             regions, sealed = self.finish_labels(sim, fields.types, fields.inv_rho, fields.extra_diag, fields.counters)
-        if not sealed or regions == 1:
+        if not sealed:
+            return False
+        lines = sim.region.cell_lines
+        sim.launch(sum_sealed_inflow, lines[1], [fields.types, self.labels, self.pinned, *fields.vel, sim.grid.dim,
+                                                 wp.float64(1000.0 * dt / sim.grid.dx), self.squeezed, lines[0]])
+        if regions == 1:
             return False
         self._remove_means(sim, fields.types, fields.rhs)
-        sim.launch_lines(pin_roots, sim.region.cell_lines, [fields.types, self.labels, self.pinned, fields.diag,
-                                                            fields.extra_diag])
+        sim.launch_lines(pin_roots, lines, [fields.types, self.labels, self.pinned, fields.diag, fields.extra_diag])
         return True
+
+    @staticmethod
+    def squeeze_error(counts, n_fluid: int) -> str | None:
+        """The reason to stop when the solids have pushed more than SQUEEZE_LIMIT of the fluid's
+        volume into sealed liquid (booked up to the previous step), else None."""
+        cells = counts[SLOT_SQUEEZED] / 1000.0
+        if cells <= SQUEEZE_LIMIT * n_fluid:
+            return None
+        return (f"the colliders have pushed {cells:.3g} cells' volume into liquid that fills a closed region "
+                f"({100 * cells / max(n_fluid, 1):.3g}% of the fluid's {n_fluid} cells), which has no room "
+                f"for it and is being compressed. Leave the liquid room: fill less ([shapes]), open a wall "
+                f"([domain].walls), or stop the collider sooner or keep it off the walls ([colliders.N].stop, "
+                f".velocity, .acceleration, .center)")
 
     def center(self, sim, fields):
         """After a solve that settle() prepared: each sealed region's pressure to mean zero, the level

@@ -402,7 +402,10 @@ class Simulation:
                 f"in the initial state.")
         # A sealed region beside others is made solvable on its own; else a closed tank full of liquid
         # (one sealed region) is singular as a whole, and the solver projects out the constant.
-        apart = self.sealed.settle(self, f, counts[0])
+        squeezed = self.sealed.squeeze_error(counts[0], n_fluid)
+        if squeezed:
+            raise SimulationError(f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {squeezed}")
+        apart = self.sealed.settle(self, f, counts[0], dt)
         singular = n_pinned == 0 and not apart
         info = self.solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,

@@ -100,7 +100,8 @@ def test_non_finite_frame_is_a_simulation_error(tmp_path):
     with writer:
         writer.write_frame(0, pos, vel, ids, mat)
         vel[1, 2] = np.nan
-        with pytest.raises(SimulationError, match=r"velocities contains NaN or inf \(1 of 3 particles\).*\[solver\]\.cfl"):
+        with pytest.raises(SimulationError,
+                           match=r"velocities contains NaN or inf \(1 of 3 particles\).*\[solver\]\.cfl"):
             writer.write_frame(1, pos, vel, ids, mat)
         assert writer.last_frame == 0
 

@@ -39,7 +39,7 @@ from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from . import threads
+from . import sealed_regions, threads
 from .threads import Parallel, cpu_threads, line_slabs, split
 from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from .transfer_kernels import G2P, P2G, book_outflow, fastest_of_parts, split_pairs
@@ -118,6 +118,7 @@ class Simulation:
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
         self._loaded: set = set()  # kernels launched once already (_launch_parts)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
+        self.sealed = sealed_regions.SealedRegions(g.cells, self.device)  # regions no free surface reaches
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
@@ -392,6 +393,7 @@ class Simulation:
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
+        self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
         counts = self.read_host(f.counters).reshape(-1, threads.CACHE_LINE_FLOATS)
         n_fluid, n_pinned, bad = int(counts[:, 0].sum()), int(counts[:, 1].sum()), int(counts[0, 2])
@@ -401,12 +403,21 @@ class Simulation:
                 f"non-finite position or velocity. Likely cause: the previous step diverged (a time "
                 f"step too large for the scene: lower [solver].cfl or set [solver].max_dt) or NaN/Inf "
                 f"in the initial state.")
+        # A sealed region beside others is made solvable on its own; else a closed tank full of liquid
+        # (one sealed region) is singular as a whole, and the solver projects out the constant.
+        squeezed = self.sealed.squeeze_error(counts[0], n_fluid)
+        if squeezed:
+            raise SimulationError(f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {squeezed}")
+        apart = self.sealed.settle(self, f, counts[0], dt)
+        singular = n_pinned == 0 and not apart
         info = self.solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=settings.cg_tolerance, max_iter=settings.cg_max_iterations,
-            preconditioner=settings.preconditioner, singular=n_pinned == 0, n_fluid=n_fluid,
+            preconditioner=settings.preconditioner, singular=singular, n_fluid=n_fluid,
             region=r.box if r.enabled else None,
         )
+        if apart:
+            self.sealed.center(self, f)
         self.stats.record(info)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],

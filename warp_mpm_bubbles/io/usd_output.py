@@ -89,6 +89,24 @@ _OS_ERRORS = [(errno.ENOSPC, "No space left on device"), (errno.EDQUOT, "quota e
               (errno.EROFS, "Read-only file system")]
 
 
+def non_finite_frame(frame: int, name: str, bad: int, n: int) -> ValueError:
+    """The error for a frame whose particles hold NaN or Inf: the simulation diverged, which is a
+    SimulationError (a run that stops: exit 1, its written frames kept) as well as the ValueError the
+    writer raises for data it cannot write. Nothing of the frame is written. The simulation's module
+    (and Warp) is imported only here, so reading and previewing output do not load it."""
+    from ..core.simulation import SimulationError
+
+    class NonFiniteFrameError(SimulationError, ValueError):
+        pass
+
+    return NonFiniteFrameError(
+        f"frame {frame}: {name} contains NaN or inf ({bad} of {n} particles), so the frame is not "
+        f"written: the simulation diverged during it. Likely cause: a time step too large for the "
+        f"scene (lower [solver].cfl or set [solver].max_dt), or a moving collider squeezing liquid "
+        f"it has shut in against a wall or another collider (slow its [colliders.N].velocity or "
+        f"acceleration, or start it a cell or more away)")
+
+
 class StageWriter:
     """Writes one USD frame per write_frame(); every returned frame is durable on disk."""
 
@@ -296,8 +314,9 @@ class StageWriter:
                 raise ValueError(f"frame {frame}: {name} has shape {arr.shape}, expected "
                                  f"{shape if n >= 0 else '(N, 3)'}")
         for name, arr in (("positions", pos), ("velocities", vel)):
-            if not np.isfinite(arr).all():
-                raise ValueError(f"frame {frame}: {name} contains NaN or inf")
+            finite = np.isfinite(arr).all(axis=1)
+            if not finite.all():
+                raise non_finite_frame(frame, name, int(n - finite.sum()), n)
         if n and (mat.min() < 0 or mat.max() >= self._n_mat):
             raise ValueError(f"frame {frame}: material index outside [0, {self._n_mat})")
         return pos, vel, ids, mat

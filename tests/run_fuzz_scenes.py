@@ -174,6 +174,10 @@ class _Gen:
             direction[1] = -1.0
         else:
             direction = [float(x) for x in self.rng.normal(size=self.dim)]
+        # the nozzle (a disc across the direction) inside the walls, as `check` asks
+        d = np.asarray(direction) / np.linalg.norm(direction)
+        half = rad * np.sqrt(np.clip(1.0 - d * d, 0.0, 1.0)) * (1.0 + 1e-6)
+        c = [float(x) for x in np.clip(c, half, np.asarray(s) - half)]
         e = {"type": "liquid_inflow", "material": material, "center": c, "direction": direction,
              "radius": rad, "speed": self.uniform(0.2, 1.5)}
         if self.chance(0.3):

@@ -74,10 +74,9 @@ def classify_cells(
     """Ghost cells take the type of their wall; inside, a cell is fluid if a particle is in it or
     if the splatted fill fraction exceeds HOLE_FRACTION.
 
-    An open wall's ghost cells are always EMPTY, the air outside at p = 0 gauge: the free surface's
-    ghost-fluid condition then puts p = 0 about at the wall's face, so liquid at the wall drains out
-    under its own head (water leaving a tank into the air), and particles crossing the face leave.
-    Read as fluid (the splats reach them), they would close the wall with a solid beyond them.
+    An open wall's ghost cells are always EMPTY, the air outside at p = 0 gauge (about at the face,
+    by the ghost-fluid surface), so liquid at the wall drains out under its own head; read as fluid
+    (the splats reach them), they would close the wall with the arrays' edge beyond them.
 
     Stretching flow (a wake, expanding gas) leaves particle-free cells inside the material; read
     as empty they would pin p = 0 inside the water and vent bubbles. A one-cell hole still gets

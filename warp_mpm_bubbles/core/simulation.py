@@ -32,14 +32,13 @@ from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
-from .grid import (INTERFACE_SHARP, INTERFACES, PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, RETIRED,
-                   WALL_OPEN, MacGrid)
+from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
 from .stage import HOOKS, Stage, build_stages
 from .state import GridFields, ParticleState
 from .timing import StageTimer
-from . import sealed_regions, threads
+from . import readout, sealed_regions, threads
 from .threads import Parallel, cpu_threads, line_slabs, split
 from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from .transfer_kernels import G2P, P2G, book_outflow, fastest_of_parts, split_pairs
@@ -572,76 +571,21 @@ class Simulation:
 
     # ------------------------------------------------------------------------------ read-out
     def particles_numpy(self, include_retired: bool = False) -> dict[str, np.ndarray]:
-        """Copies of the state of the active particles (vented gas is retired; liquid flying above an
-        open top is active), or of all of them.
-
-        Copies: on the CPU device .numpy() is a view that the next step changes.
-        """
-        p = self.particles
-        view = {name: p.numpy(name) for name in ("x", "v", "material", "J", "mass", "vol0", "phase", "ids")}
-        keep = np.arange(p.count) if include_retired else np.flatnonzero(p.numpy("active") != RETIRED)
-        ids = view["ids"][keep]
-        if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # sorted by cell: back to id order
-            keep = keep[np.argsort(ids, kind="stable")]
-        return {
-            "positions": view["x"][keep].copy(),
-            "velocities": view["v"][keep].copy(),
-            "ids": view["ids"][keep].copy(),
-            "material": view["material"][keep].copy(),
-            "J": view["J"][keep].copy(),
-            "mass": view["mass"][keep].copy(),
-            "volume": (view["vol0"] * view["J"])[keep],
-            "phase": view["phase"][keep].copy(),  # grid.PHASE_*: foam and sub-grid bubbles have their own radius
-        }
+        """Copies of the active particles' state (readout.particles_numpy)."""
+        return readout.particles_numpy(self, include_retired)
 
     def gas_budget(self) -> dict[str, float]:
-        """Gas mass (kg) in the liquid as resolved gas ("inside") and as sub-grid bubbles, in foam,
-        vented to the atmosphere (burst foam included, and injected bubbles released straight into
-        the air), the float32 rounding of bubble conversions (effects/subgrid.py), and their sum
-        (conserved exactly; injectors add to it). Air the liquid took from the atmosphere is booked as
-        taken, so the total does not grow by it: "trapped" (a pocket a splash closed over,
-        core/voids.py) and "entrained" (sub-grid bubbles a splash seeded, effects/entrainment.py).
-        "volume": the resolved gas's volume."""
-        p = self.particles
-        phase = p.numpy("phase")
-        active = p.numpy("active") == 1
-        mass = p.numpy("mass").astype(np.float64)
-        held = {key: float(mass[(phase == code) & active].sum())
-                for key, code in (("inside", PHASE_GAS), ("subgrid", PHASE_SUBGRID), ("foam", PHASE_FOAM))}
-        vented = float(self.fields.vented_mass.numpy()[0])
-        outflow = self.fields.outflow_mass.numpy()
-        left = float(outflow[PHASE_GAS] + outflow[PHASE_SUBGRID] + outflow[PHASE_FOAM])  # through open walls
-        booked = {key: float(self.host_state.get(f"gas_mass_{key}", np.zeros(1))[0])
-                  for key in ("rounding", "trapped", "entrained")}
-        return {**held, "vented": vented, "left": left, **booked,
-                "total": held["inside"] + held["subgrid"] + held["foam"] + vented + left + booked["rounding"]
-                - booked["trapped"] - booked["entrained"],
-                "volume": float((p.numpy("vol0") * p.numpy("J"))[(phase == PHASE_GAS) & active].sum())}
+        """Where the gas went, kg (readout.gas_budget)."""
+        return readout.gas_budget(self)
 
     def mass_budget(self) -> dict[str, dict[str, float]]:
-        """Where the mass went, kg. "liquid": "added" (seeded and emitted), "held" (active liquid
-        particles), "left" (through open walls) and "error" = added - held - left (float rounding
-        only: 0 up to the sums' order). "gas": gas_budget() (its "left" the gas, foam and sub-grid
-        bubbles gone through open walls)."""
-        p = self.particles
-        liquid = (p.numpy("phase") == PHASE_LIQUID) & (p.numpy("active") != RETIRED)  # flying above an open top too
-        held = float(p.numpy("mass")[liquid].astype(np.float64).sum())
-        added = float(self.host_state["liquid_added"][0])
-        left = float(self.fields.outflow_mass.numpy()[PHASE_LIQUID])
-        return {"liquid": {"added": added, "held": held, "left": left, "error": added - held - left},
-                "gas": self.gas_budget()}
+        """Where the liquid and the gas went, kg (readout.mass_budget)."""
+        return readout.mass_budget(self)
 
     def pressure_numpy(self) -> np.ndarray:
-        """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""
-        return self.fields.pressure.numpy()[self.grid.interior_slice()]
+        """Gauge pressure (Pa) on interior cells from the last step (readout.pressure_numpy)."""
+        return readout.pressure_numpy(self)
 
     def liquid_volume(self) -> float:
-        """Volume the particles fill: sum over cells of min(phi, 1) dx^3, phi the rest-volume fraction.
-
-        Clustering particles (the drift that incompressible MPM suffers) raises phi above 1 in some
-        cells and lowers this number. Re-splats the current particles; the grid is rebuilt each step.
-        """
-        self.particles_to_grid()
-        cell_vol = self.grid.dx ** 3
-        phi = self.fields.liq_volume.numpy() / cell_vol
-        return float(np.minimum(phi, 1.0).sum() * cell_vol)
+        """Volume the particles fill, m^3 (readout.liquid_volume)."""
+        return readout.liquid_volume(self)

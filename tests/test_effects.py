@@ -50,6 +50,8 @@ def test_each_effect_adds_only_its_own_stages(tmp_path):
     assert sim.effects == ["colliders", "surface_tension", "emitters"]
     extra = set(sim.launches) - set(run_steps(base).launches) - VOID_SEARCH  # the stream covers the air below it
     assert extra == {"inside_any_collider", "mark_collider_cells", "push_out_of_colliders",  # static: no faces
+                     # solids inside the domain may seal fluid off: its regions are counted (core/sealed_regions.py)
+                     "start_labels", "sweep_labels", "check_and_mark", "count_regions", "report_squeezed",
                      "liquid_level_set", "smooth_level_set", "height_fraction", "column_heights", "surface_curvature",
                      "average_curvature", "apply_surface_tension"}
     assert sim.timer.stages_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]

@@ -117,7 +117,9 @@ class Simulation:
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
         self._loaded: set = set()  # kernels launched once already (_launch_parts)
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
-        self.sealed = sealed_regions.SealedRegions(g.cells, self.device)  # regions no free surface reaches
+        # Fluid regions no free surface reaches, one apart from another: only solids inside the domain (the
+        # colliders) can seal one off; without them the fluid is one region or reaches the air.
+        self.sealed = sealed_regions.SealedRegions(g.cells, self.device) if scene.colliders else None
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
@@ -392,7 +394,8 @@ class Simulation:
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
-        self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
+        if self.sealed:
+            self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
         wp.copy(f.counters, f.nonfinite, dest_offset=2, count=1)  # one read-back, not two
         counts = self.read_host(f.counters).reshape(-1, threads.CACHE_LINE_FLOATS)
         n_fluid, n_pinned, bad = int(counts[:, 0].sum()), int(counts[:, 1].sum()), int(counts[0, 2])
@@ -404,10 +407,7 @@ class Simulation:
                 f"in the initial state.")
         # A sealed region beside others is made solvable on its own; else a closed tank full of liquid
         # (one sealed region) is singular as a whole, and the solver projects out the constant.
-        squeezed = self.sealed.squeeze_error(counts[0], n_fluid)
-        if squeezed:
-            raise SimulationError(f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {squeezed}")
-        apart = self.sealed.settle(self, f, counts[0], dt)
+        apart = bool(self.sealed) and self._settle_sealed(counts[0], n_fluid, dt)
         singular = n_pinned == 0 and not apart
         info = self.solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
@@ -421,6 +421,14 @@ class Simulation:
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
                               [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
+
+    def _settle_sealed(self, counts, n_fluid: int, dt: float) -> bool:
+        """Stop a run whose solids squeeze liquid they shut in; make each sealed region solvable on
+        its own when there are several (core/sealed_regions.py). Whether it did."""
+        squeezed = self.sealed.squeeze_error(counts, n_fluid)
+        if squeezed:
+            raise SimulationError(f"step {self.stats.steps + 1} (t = {self.time:.6g} s): {squeezed}")
+        return self.sealed.settle(self, self.fields, counts, dt)
 
     def extend(self, vel, valid, box=None):
         """Extrapolate a face field past its trusted faces (EXTRAPOLATION_LAYERS), enforce walls,

@@ -9,6 +9,11 @@ Mass is exact by construction: a stream layer's particles share the layer's volu
 (area x spacing), and a bubble's particles share its sphere's volume (in 2D its disk's through the
 one-cell slab, pi r^2 dx, sub-grid bubbles too: a bubble is the same gas whichever way it is held).
 
+A stream delivers what the liquid lets in: a particle whose cell the liquid already fills past
+CROWDED_FILL (a nozzle under water, aimed at a wall, or in a full box) is not laid, and
+host_state["inflow_volume"] books what each stream owed and what it delivered (the run's summary
+says when it is less). Laid anyway, such layers crowded the liquid into 0.84-0.89 of its rest volume.
+
 Where a bubble goes (all of a step's bubbles at once, from the particles as they are now, so a
 resumed run decides alike; one read, docs/host_syncs.md):
 - into the open air (no liquid above its cell in its column; without gravity, none in its 3^dim

@@ -8,7 +8,8 @@ Each result line holds the scene, its tag, the exit code ("hang" when it ran pas
 the captured stdout and stderr, the wall seconds and, for every frame the run wrote, what the test
 cannot read from the USD file: a hash of the state, the liquid's rest volume (mass / density: what
 entered and stayed), the volume it occupies (Simulation.liquid_volume), the liquid's mass budget (what left
-through open walls), the gas budget's total and volume, and what the emitters have emitted so far. Measuring does not change the run (the grid that
+through open walls), the gas budget's total and volume, what the emitters have emitted so far
+and the volume each stream delivered. Measuring does not change the run (the grid that
 liquid_volume re-splats is rebuilt every step): the USD it writes matched a plain `run`'s bit for
 bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a timeout,
 so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
@@ -52,7 +53,7 @@ def frame_metrics(sim) -> dict:
     x = p["positions"][liquid][:, :sim.grid.dim]
     flying = ((x < 0.0) | (x > hi)).any(1)
     budget = sim.mass_budget()["liquid"]
-    emitted = sim.host_state.get("emitters")
+    emitted, inflow = sim.host_state.get("emitters"), sim.host_state.get("inflow_volume")
     state = hashlib.sha1(p["positions"].tobytes() + p["velocities"].tobytes() + p["ids"].tobytes())
     return {
         "state_sha1": state.hexdigest(),  # the same scene must give the same state (CPU determinism)
@@ -64,6 +65,8 @@ def frame_metrics(sim) -> dict:
         "gas_total": float(sim.gas_budget()["total"]) if sim.has_gas else None,
         "gas_volume": float(sim.gas_budget()["volume"]) if sim.has_gas else 0.0,
         "emitted": None if emitted is None else np.asarray(emitted)[:, 1].astype(int).tolist(),
+        # per emitter, the rest volume its stream delivered (a blocked nozzle: less than it owed)
+        "delivered": None if inflow is None else np.asarray(inflow)[:, 1].tolist(),
         "dx": float(sim.grid.dx),
     }
 

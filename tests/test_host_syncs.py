@@ -122,7 +122,9 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
         assert 1 <= modules.pop("core.voids") <= 6
         if sim.stats.steps == 1:  # the gas's start pressure, read once before any step's read-back exists
             assert modules.pop("physics.gas") == 1
-        # Entrainment, emitters, colliders, foam, gas, tension: no read at all (the gas's step measures
+        # The stream's layers: the fill of their cells, one read on a step that lays any (effects/emitters.py).
+        assert modules.pop("effects.emitters", 0) <= 1
+        # Entrainment, colliders, foam, gas, tension: no read at all (the gas's step measures
         # ride on the step's read-back).
         assert set(modules) <= {"core.simulation", "effects.subgrid", *SOLVER_MODULES}, modules
         assert modules["core.simulation"] == STEP_READS and reads.elements["core.simulation"] == step_elements(sim)

@@ -11,7 +11,8 @@ tests/run_fuzz_worker.py), and every run is held to what a user may expect of it
   opens, the frames are the run's first ones, each has every attribute);
 - exit 0: every frame asked for; every position finite and inside the domain; every speed under
   speed_bound (gravity, pressure, emitters, colliders, tension, the volume correction); the liquid's
-  rest volume equal to what the shapes seeded plus what the streams let in (liquid_entered), and no
+  rest volume equal to what the shapes seeded plus what the streams delivered (the emitters' ledger,
+  at most what their layers owe: a blocked nozzle delivers less; check_delivered), and no
   more than the box holds; the room it occupies not squeezed below its rest volume (COMPRESSION);
   liquid and gas together within the box (FILL_TOLERANCE); the gas budget's total constant (growing
   only by what injectors add);
@@ -126,19 +127,34 @@ def speed_bound(scene, t: float) -> tuple[float, dict]:
     return sum(terms.values()), terms
 
 
-def liquid_entered(scene, emitted: list[int] | None, dx: float) -> float:
-    """The rest volume the streams let in, from the layers each emitted (effects/emitters.py: a layer
-    of a stream of radius r is 2 r h dx in 2D (the slab is one cell thick), pi r^2 h in 3D, h the
-    particle spacing)."""
-    volume = 0.0
+def stream_volume(scene, i: int, layers: int, dx: float) -> float:
+    """The rest volume emitter i's stream owes for `layers` layers (effects/emitters.py: a layer of a
+    stream of radius r is 2 r h dx in 2D (the slab is one cell thick), pi r^2 h in 3D, h the particle
+    spacing); a nozzle whose cells are full delivers less."""
+    e = scene.emitters[i]
     h = dx / scene.solver.particles_per_cell ** (1.0 / scene.dim)
+    area = 2.0 * e.radius * dx if scene.dim == 2 else math.pi * e.radius**2
+    return layers * area * h
+
+
+def liquid_entered(scene, emitted: list[int] | None, dx: float) -> float:
+    """The rest volume the streams owed, from the layers each emitted: what entered where none was blocked."""
+    return sum(stream_volume(scene, i, emitted[i] if emitted else 0, dx)
+               for i, e in enumerate(scene.emitters) if isinstance(e, LiquidInflow))
+
+
+def check_delivered(scene, m) -> tuple[float, list[str]]:
+    """(the rest volume the streams delivered by frame m, by the emitters' ledger; the problems): each
+    stream delivers at most what its layers owe (a blocked nozzle less, never more)."""
+    if m.get("delivered") is None:
+        return liquid_entered(scene, m["emitted"], m["dx"]), []
+    problems = []
     for i, e in enumerate(scene.emitters):
-        if not isinstance(e, LiquidInflow):
-            continue
-        layers = emitted[i] if emitted else 0
-        area = 2.0 * e.radius * dx if scene.dim == 2 else math.pi * e.radius**2
-        volume += layers * area * h
-    return volume
+        owed = stream_volume(scene, i, m["emitted"][i], m["dx"]) if isinstance(e, LiquidInflow) else 0.0
+        if m["delivered"][i] > owed * (1.0 + 1e-9) + 1e-300:
+            problems.append(f"frame {m['frame']}: emitter {i} delivered {m['delivered'][i]:.6g} m^3, more than "
+                            f"the {owed:.6g} m^3 its {m['emitted'][i]} layers owe")
+    return sum(m["delivered"]), problems
 
 
 def expected_layers(scene, i: int, t: float, dx: float) -> float:
@@ -253,7 +269,8 @@ def check_volumes(scene, frames_meta) -> list[str]:
         # The mass ledger closes to the float64 sums' rounding: added = held + left.
         if abs(m["liquid_mass_error"]) > 1e-9 * max(m["liquid_added_mass"], 1e-300):
             problems.append(f"frame {m['frame']}: the liquid's mass budget is off by {m['liquid_mass_error']:.3g} kg")
-        entered = liquid_entered(scene, m["emitted"], dx)
+        entered, over = check_delivered(scene, m)
+        problems += over
         # what left through open walls, as rest volume (by mass when all liquids share one density)
         left = m["liquid_left_mass"] / next(iter(densities)) if len(densities) == 1 else 0.0
         want = first["liquid_rest_volume"] + entered - left

@@ -277,6 +277,10 @@ def summary(result: RunResult) -> str:
         out = 100 * liquid["left"] / liquid["added"] if liquid["added"] > 0 else 0.0
         lines.append(f"  open walls: {out:.1f}% of the liquid's mass left through them ({liquid['left']:.4g} of "
                      f"{liquid['added']:.4g} kg seeded and emitted)")
+    for i, (owed, delivered) in enumerate(sim.host_state.get("inflow_volume", ())):
+        if delivered < owed * (1.0 - 1e-9):  # effects/emitters.py's _deliver refused the crowded cells
+            lines.append(f"  [emitters.{i}] delivered {100 * delivered / owed:.0f}% of its stream: its nozzle's cells "
+                         f"were full of liquid (submerged, or the stream blocked)")
     lines.append(_voids_line(sim))
     if "surface" in timer.seconds:  # built once per frame, not per step
         lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")

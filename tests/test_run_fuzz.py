@@ -425,17 +425,34 @@ def report(failures, tmp_path) -> str:
     return "\n".join(lines)
 
 
-def test_generated_runs_exit_cleanly_and_stay_physical(tmp_path):
-    failures, results = run_fuzz(range(CI_SCENES), tmp_path, timeout=600)
-    assert len(results) == CI_SCENES or failures
+# Holes the fuzz found that are not mended yet, each failing for the one reason given (any other
+# problem in them still fails the test, and so does one of them passing: then take it off).
+# All three mix a liquid stream, a gas injector and gas: the liquid ends crowded to 0.85-0.88 of its
+# rest volume (87, 347; the crowded cells are not the nozzle's, so the blocked-nozzle rule does not
+# reach them; with either emitter alone they stay above 0.95), or a particle ends 9% over the
+# speed bound (320, 1.71 m/s against 1.57).
+KNOWN = {87: "of its rest volume (compressed", 320: "above the bound", 347: "of its rest volume (compressed"}
+
+
+def assert_clean(indices, failures, results, tmp_path):
+    assert len(results) == len(indices) or failures
+    known = {i for i in list(failures) if i in KNOWN and all(KNOWN[i] in p for p in failures[i])}
+    for i in known:
+        del failures[i]
     assert not failures, report(failures, tmp_path)
+    mended = [i for i in KNOWN if i in indices and i not in known]
+    assert not mended, f"scenes {mended} of KNOWN pass now: take them off the list"
+
+
+def test_generated_runs_exit_cleanly_and_stay_physical(tmp_path):
+    indices = range(CI_SCENES)
+    assert_clean(indices, *run_fuzz(indices, tmp_path, timeout=600), tmp_path)
 
 
 @pytest.mark.slow
 def test_generated_runs_exit_cleanly_and_stay_physical_at_full_size(tmp_path):
-    failures, results = run_fuzz(range(CI_SCENES, CI_SCENES + SLOW_SCENES), tmp_path, timeout=3600)
-    assert len(results) == SLOW_SCENES or failures
-    assert not failures, report(failures, tmp_path)
+    indices = range(CI_SCENES, CI_SCENES + SLOW_SCENES)
+    assert_clean(indices, *run_fuzz(indices, tmp_path, timeout=3600), tmp_path)
 
 
 @pytest.mark.parametrize("name", list(HARD_SCENES))

@@ -52,6 +52,7 @@ def test_each_effect_adds_only_its_own_stages(tmp_path):
     assert extra == {"inside_any_collider", "mark_collider_cells", "push_out_of_colliders",  # static: no faces
                      # solids inside the domain may seal fluid off: its regions are counted (core/sealed_regions.py)
                      "start_labels", "sweep_labels", "check_and_mark", "count_regions", "report_squeezed",
+                     "fill_box",  # the stream's nozzle: how full its cells are (effects/emitters.py)
                      "liquid_level_set", "smooth_level_set", "height_fraction", "column_heights", "surface_curvature",
                      "average_curvature", "apply_surface_tension"}
     assert sim.timer.stages_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]

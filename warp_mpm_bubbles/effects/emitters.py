@@ -48,7 +48,7 @@ from ..core.boundary import clamp_to_domain, keep_in_domain, open_wall_exit
 from ..scene.capacity import MAX_INJECTED_GAUGE, draining_walls, room_and_seeded_liquid
 from ..scene.limits import max_gauge_pressure
 from ..scene.effects import GasInjector, LiquidInflow
-from .subgrid import PUSH_REACH
+from .subgrid import PUSH_REACH, pushed_from
 
 wp.set_module_options({"enable_backward": False})
 
@@ -172,17 +172,9 @@ def make_room(
     for b in range(n):
         if in_open_air(cells[owner[b]], top[owner[b]], geo):
             continue
-        d = xd - centres[b]
-        if dim == 2:
-            d[2] = wp.float64(0.0)
-        r = wp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        if r < reach[b] and r > wp.float64(0.0):
-            if dim == 2:
-                scale = wp.sqrt(r * r + radius_pow[b]) / r
-            else:
-                scale = wp.pow(wp.pow(r, wp.float64(3.0)) + radius_pow[b], wp.float64(1.0) / wp.float64(3.0)) / r
-            for a in range(dim):
-                xd[a] = centres[b][a] + d[a] * scale
+        pushed = pushed_from(xd, centres[b], reach[b], radius_pow[b], dim)
+        if pushed[1] != 0:
+            xd = pushed[0]
             moved = 1
     if moved == 0:
         return

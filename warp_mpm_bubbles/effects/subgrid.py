@@ -267,6 +267,29 @@ def retire(indices: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32)):
     active[indices[wp.tid()]] = 0
 
 
+@wp.func
+def pushed_from(xd: wp.vec3d, centre: wp.vec3d, reach: wp.float64, radius_pow: wp.float64, dim: int):
+    """(where xd goes, 1) when a bubble of radius r at `centre` pushes it aside, else (xd, 0): a point
+    within `reach` moves out along its ray so the area (2D, radius_pow = r^2) or volume (3D, r^3)
+    inside its new distance is the old one's plus the bubble's, so the pushed fluid keeps its volume."""
+    d = xd - centre
+    if dim == 2:
+        d[2] = wp.float64(0.0)
+    r = wp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    out = xd
+    hit = int(0)
+    if r < reach and r > wp.float64(0.0):
+        scale = wp.float64(0.0)
+        if dim == 2:
+            scale = wp.sqrt(r * r + radius_pow) / r
+        else:
+            scale = wp.pow(wp.pow(r, wp.float64(3.0)) + radius_pow, wp.float64(1.0) / wp.float64(3.0)) / r
+        for a in range(dim):
+            out[a] = centre[a] + d[a] * scale
+        hit = 1
+    return out, hit
+
+
 @wp.kernel
 def push_liquid(
     centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64),
@@ -281,18 +304,9 @@ def push_liquid(
     xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
     moved = int(0)
     for b in range(n):
-        c = centres[b]
-        d = xd - c
-        if dim == 2:
-            d[2] = wp.float64(0.0)
-        r = wp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        if r < reach[b] and r > wp.float64(0.0):
-            if dim == 2:
-                scale = wp.sqrt(r * r + radius_pow[b]) / r
-            else:
-                scale = wp.pow(wp.pow(r, wp.float64(3.0)) + radius_pow[b], wp.float64(1.0) / wp.float64(3.0)) / r
-            for a in range(dim):
-                xd[a] = c[a] + d[a] * scale
+        pushed = pushed_from(xd, centres[b], reach[b], radius_pow[b], dim)
+        if pushed[1] != 0:
+            xd = pushed[0]
             for a in range(3):
                 xd[a] = wp.clamp(xd[a], lo, hi[a])
             moved = 1

@@ -50,9 +50,9 @@ def _lattice(domain):
     return points, float(np.prod(size / n))
 
 
-def room_and_seeded_liquid(scene) -> tuple[float, float, float]:
-    """(room, solid, seeded liquid): the domain's volume minus the colliders', the colliders' share of
-    the domain, and the liquid the shapes seed outside them (m^3 in 3D, m^2 per metre of slab in 2D)."""
+def _lattice_owners(scene):
+    """(points, cell, solid, owner): the domain's lattice (_lattice), which points the colliders cover
+    at t = 0, and the index of the shape that seeds each point (later shapes win; -1: none)."""
     points, cell = _lattice(scene.domain)
     solid = np.zeros(len(points), bool)
     for col in scene.colliders:
@@ -60,6 +60,13 @@ def room_and_seeded_liquid(scene) -> tuple[float, float, float]:
     owner = np.full(len(points), -1)
     for i, shape in enumerate(scene.shapes):
         owner = np.where(shape.contains(points), i, owner)
+    return points, cell, solid, owner
+
+
+def room_and_seeded_liquid(scene) -> tuple[float, float, float]:
+    """(room, solid, seeded liquid): the domain's volume minus the colliders', the colliders' share of
+    the domain, and the liquid the shapes seed outside them (m^3 in 3D, m^2 per metre of slab in 2D)."""
+    points, cell, solid, owner = _lattice_owners(scene)
     liquid_shape = np.array([scene.materials[s.material].kind == "liquid" for s in scene.shapes] + [False])
     liquid = liquid_shape[owner] & ~solid  # owner -1 (no shape) picks the trailing False
     total = len(points) * cell
@@ -159,13 +166,7 @@ def _seeded_gas(scene) -> tuple[float, float]:
     """(volume, rest volume at ambient pressure) of the gas the shapes seed outside the colliders
     (m^3; 2D: m^2 per metre of slab). A shape at gauge pressure p holds (1 + p / p_atm)^(1/gamma) times
     its volume at ambient pressure (its eos' law)."""
-    points, cell = _lattice(scene.domain)
-    solid = np.zeros(len(points), bool)
-    for col in scene.colliders:
-        solid |= inside_collider(col, points, scene.dim)
-    owner = np.full(len(points), -1)
-    for i, shape in enumerate(scene.shapes):
-        owner = np.where(shape.contains(points), i, owner)
+    points, cell, solid, owner = _lattice_owners(scene)
     volume = rest = 0.0
     p_atm = scene.domain.ambient_pressure
     for i, shape in enumerate(scene.shapes):

@@ -509,7 +509,7 @@ class Simulation:
                  for d, inputs in parts]
         if kernel in self._loaded:
             self.parallel.run(calls)
-        else:
+        elif calls:  # (no part: an empty box, nothing loaded yet)
             for call in calls:
                 call()
             self._loaded.add(kernel)

@@ -384,7 +384,7 @@ class GasStage(Stage):
     def before_extend(self, sim, dt: float):
         f, r = sim.fields, sim.region
         self.cavities.before_extend(sim)
-        if f.gas_vel is None or 0 in r.cells:  # no particle left (all the gas vented): nothing to split
+        if f.gas_vel is None:
             return
         # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
         # and the core extends that across the interface. (Outside the box both hold the empty state.)

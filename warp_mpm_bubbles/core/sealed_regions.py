@@ -189,6 +189,18 @@ def clear_sums(sums: wp.array3d(dtype=wp.float64), sizes: wp.array3d(dtype=wp.in
         sizes[c[0], c[1], c[2]] = 0
 
 
+@wp.func
+def sealed_root(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+                pinned: wp.array3d(dtype=wp.int32), c: wp.vec3i, shape: wp.vec3i):
+    """The root cell of fluid cell c's region when that region is sealed (no pinned cell), else (-1, -1, -1)."""
+    r = wp.vec3i(-1, -1, -1)
+    if types[c[0], c[1], c[2]] == FLUID:
+        root = cell_of(labels[c[0], c[1], c[2]], shape)
+        if pinned[root[0], root[1], root[2]] == 0:
+            r = root
+    return r
+
+
 @wp.kernel
 def sum_sealed(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
                pinned: wp.array3d(dtype=wp.int32), field: wp.array3d(dtype=float),
@@ -200,11 +212,10 @@ def sum_sealed(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.in
     shape = wp.vec3i(types.shape[0], types.shape[1], types.shape[2])
     for s in range(first[box.axis], line_end(box, first)):
         c = on_line(first, box.axis, s)
-        if types[c[0], c[1], c[2]] == FLUID:
-            r = cell_of(labels[c[0], c[1], c[2]], shape)
-            if pinned[r[0], r[1], r[2]] == 0:
-                wp.atomic_add(sums, r[0], r[1], r[2], wp.float64(field[c[0], c[1], c[2]]))
-                wp.atomic_add(sizes, r[0], r[1], r[2], 1)
+        r = sealed_root(types, labels, pinned, c, shape)
+        if r[0] >= 0:
+            wp.atomic_add(sums, r[0], r[1], r[2], wp.float64(field[c[0], c[1], c[2]]))
+            wp.atomic_add(sizes, r[0], r[1], r[2], 1)
 
 
 @wp.kernel
@@ -217,11 +228,10 @@ def subtract_sealed_mean(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(d
     shape = wp.vec3i(types.shape[0], types.shape[1], types.shape[2])
     for s in range(first[box.axis], line_end(box, first)):
         c = on_line(first, box.axis, s)
-        if types[c[0], c[1], c[2]] == FLUID:
-            r = cell_of(labels[c[0], c[1], c[2]], shape)
-            if pinned[r[0], r[1], r[2]] == 0:
-                mean = sums[r[0], r[1], r[2]] / wp.float64(sizes[r[0], r[1], r[2]])
-                field[c[0], c[1], c[2]] = float(wp.float64(field[c[0], c[1], c[2]]) - mean)
+        r = sealed_root(types, labels, pinned, c, shape)
+        if r[0] >= 0:
+            mean = sums[r[0], r[1], r[2]] / wp.float64(sizes[r[0], r[1], r[2]])
+            field[c[0], c[1], c[2]] = float(wp.float64(field[c[0], c[1], c[2]]) - mean)
 
 
 @wp.kernel
@@ -254,10 +264,9 @@ def sum_sealed_inflow(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtyp
     shape = wp.vec3i(types.shape[0], types.shape[1], types.shape[2])
     for s in range(first[box.axis], line_end(box, first)):
         c = on_line(first, box.axis, s)
-        if types[c[0], c[1], c[2]] == FLUID:
-            r = cell_of(labels[c[0], c[1], c[2]], shape)
-            if pinned[r[0], r[1], r[2]] == 0:
-                wp.atomic_add(squeezed, 0, -scale * wp.float64(cell_divergence(vel_u, vel_v, vel_w, c, dim)))
+        r = sealed_root(types, labels, pinned, c, shape)
+        if r[0] >= 0:
+            wp.atomic_add(squeezed, 0, -scale * wp.float64(cell_divergence(vel_u, vel_v, vel_w, c, dim)))
 
 
 @wp.kernel

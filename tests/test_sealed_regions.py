@@ -16,6 +16,7 @@ from warp_mpm_bubbles.core.grid import EMPTY, FLUID, SOLID_NO_SLIP
 from warp_mpm_bubbles.core.simulation import Simulation, SimulationError
 from warp_mpm_bubbles.io.usd_output import StageWriter
 from warp_mpm_bubbles.scene.effects import Collider
+from scenes import SMALL_2D
 
 wp.config.quiet = True
 G = 9.81
@@ -113,26 +114,10 @@ def test_non_finite_frame_is_a_simulation_error(tmp_path):
         assert writer.last_frame == 0
 
 
-SCENE = """[domain]
-size = [0.1, 0.1]
-cell_size = 0.01
-[materials.water]
-[[shapes]]
-type = "box"
-material = "water"
-min = [0.0, 0.0]
-max = [0.1, 0.05]
-[output]
-path = "{out}"
-fps = 60.0
-frames = 3
-"""
-
-
 def test_run_that_goes_non_finite_stops_with_exit_1(tmp_path, monkeypatch, capsys):
     # Whatever makes a frame non-finite, the run stops by name (exit 1) and keeps the frames before.
     out = tmp_path / "nan.usdc"
-    (tmp_path / "nan.toml").write_text(SCENE.format(out=out))
+    (tmp_path / "nan.toml").write_text(SMALL_2D.format(out=out.as_posix(), frames=3))
     real = Simulation.particles_numpy
 
     def poisoned(self, *args, **kwargs):

@@ -14,7 +14,8 @@ from .grid import (
 )
 from .gas_law import cell_compressibility
 from .cells import HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trusted, fill_fraction, is_solid, unit
-from .lines import Lines, line_end, line_first, on_line
+from .kernel_args import CellPhases, FaceField, PressureRows, Splat, StepParams
+from .lines import line_kernel
 from .volume_correction import cell_excess, is_hole
 
 wp.set_module_options({"enable_backward": False})
@@ -22,34 +23,18 @@ wp.set_module_options({"enable_backward": False})
 MIN_SURFACE_FRACTION = wp.constant(0.1)
 
 
-@wp.kernel
-def momentum_to_velocity(
-    mom: wp.array3d(dtype=float),
-    mass: wp.array3d(dtype=float),
-    accel: float,
-    dt: float,
-    vel: wp.array3d(dtype=float),
-    box: Lines,
-):
-    """u* = p/m + dt g on faces that received mass; zero elsewhere."""
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        momentum_to_velocity_at(mom, mass, accel, dt, vel, c[0], c[1], c[2])
-
-
 @wp.func
 def momentum_to_velocity_at(
-    mom: wp.array3d(dtype=float),
-    mass: wp.array3d(dtype=float),
     accel: float,
     dt: float,
+    mom: wp.array3d(dtype=float),
+    mass: wp.array3d(dtype=float),
     vel: wp.array3d(dtype=float),
     i: int,
     j: int,
     k: int,
 ):
+    """u* = p/m + dt g on faces that received mass; zero elsewhere."""
     m = mass[i, j, k]
     if m > 0.0:
         vel[i, j, k] = mom[i, j, k] / m + dt * accel
@@ -57,19 +42,22 @@ def momentum_to_velocity_at(
         vel[i, j, k] = 0.0
 
 
-@wp.kernel
-def classify_cells(
-    count: wp.array3d(dtype=wp.int32),
-    liq_volume: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    two_phase: int,
-    inv_cell_vol: float,
+momentum_to_velocity = line_kernel(momentum_to_velocity_at)
+
+
+@wp.func
+def classify_cells_at(
+    step: StepParams,
     ghost: wp.vec3i,
     interior: wp.vec3i,
     wall_lo: wp.vec3i,
     wall_hi: wp.vec3i,
+    count: wp.array3d(dtype=wp.int32),
+    splat: Splat,
     types: wp.array3d(dtype=wp.int32),
-    box: Lines,
+    i: int,
+    j: int,
+    k: int,
 ):
     """Ghost cells take the type of their wall; inside, a cell is fluid if a particle is in it or
     if the splatted fill fraction exceeds HOLE_FRACTION.
@@ -82,29 +70,6 @@ def classify_cells(
     as empty they would pin p = 0 inside the water and vent bubbles. A one-cell hole still gets
     about 0.44 from its neighbours, while the air above a flat surface gets about 0.17.
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        classify_cells_at(count, liq_volume, gas_volume, two_phase, inv_cell_vol, ghost, interior, wall_lo, wall_hi, types, c[0], c[1], c[2])
-
-
-@wp.func
-def classify_cells_at(
-    count: wp.array3d(dtype=wp.int32),
-    liq_volume: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    two_phase: int,
-    inv_cell_vol: float,
-    ghost: wp.vec3i,
-    interior: wp.vec3i,
-    wall_lo: wp.vec3i,
-    wall_hi: wp.vec3i,
-    types: wp.array3d(dtype=wp.int32),
-    i: int,
-    j: int,
-    k: int,
-):
     c = wp.vec3i(i, j, k)
     in_wall = int(0)
     sticky = int(0)
@@ -128,10 +93,14 @@ def classify_cells_at(
             types[i, j, k] = SOLID_FREE_SLIP
     elif outside == 1:
         types[i, j, k] = EMPTY
-    elif count[i, j, k] > 0 or fill_fraction(liq_volume, gas_volume, two_phase, c, inv_cell_vol) > HOLE_FRACTION:
+    elif count[i, j, k] > 0 or fill_fraction(splat.liq_volume, splat.gas_volume, step.two_phase, c,
+                                             step.inv_cell_vol) > HOLE_FRACTION:
         types[i, j, k] = FLUID
     else:
         types[i, j, k] = EMPTY
+
+
+classify_cells = line_kernel(classify_cells_at)
 
 
 @wp.kernel
@@ -174,20 +143,16 @@ def surface_fraction(phi_fluid: float, phi_empty: float):
     return wp.clamp(theta, MIN_SURFACE_FRACTION, 1.0)
 
 
-@wp.kernel
-def face_inverse_density(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    liq_mass: wp.array3d(dtype=float),
-    liq_volume: wp.array3d(dtype=float),
-    gas_mass: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    two_phase: int,
-    interface: int,
+@wp.func
+def face_inverse_density_at(
+    step: StepParams,
     axis: int,
-    inv_cell_vol: float,
+    cells: CellPhases,
+    splat: Splat,
     inv_rho: wp.array3d(dtype=float),
-    box: Lines,
+    i: int,
+    j: int,
+    k: int,
 ):
     """Face weight of the pressure operator: 1/rho, divided by theta on liquid-air faces; 0 if inactive.
 
@@ -200,30 +165,13 @@ def face_inverse_density(
     takes rho = theta rho_liquid + (1 - theta) rho_gas with theta the liquid share of the segment
     between the centres (ghost-fluid method, Liu, Fedkiw & Kang 2000).
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        face_inverse_density_at(types, phase, liq_mass, liq_volume, gas_mass, gas_volume, two_phase, interface, axis, inv_cell_vol, inv_rho, c[0], c[1], c[2])
-
-
-@wp.func
-def face_inverse_density_at(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    liq_mass: wp.array3d(dtype=float),
-    liq_volume: wp.array3d(dtype=float),
-    gas_mass: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    two_phase: int,
-    interface: int,
-    axis: int,
-    inv_cell_vol: float,
-    inv_rho: wp.array3d(dtype=float),
-    i: int,
-    j: int,
-    k: int,
-):
+    types = cells.types
+    two_phase = step.two_phase
+    inv_cell_vol = step.inv_cell_vol
+    liq_mass = splat.liq_mass
+    liq_volume = splat.liq_volume
+    gas_mass = splat.gas_mass
+    gas_volume = splat.gas_volume
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -242,17 +190,17 @@ def face_inverse_density_at(
         mg = f_lo * at(gas_mass, lo) + f_hi * at(gas_mass, hi)
         vg = f_lo * at(gas_volume, lo) + f_hi * at(gas_volume, hi)
         rho = (ml + mg) / (vl + vg)  # the baseline's mixture; also the fallback below
-        if interface != INTERFACE_BASELINE:
+        if step.interface != INTERFACE_BASELINE:
             p_lo = -1
             p_hi = -1
             if t_lo == FLUID:
-                p_lo = phase[lo[0], lo[1], lo[2]]
+                p_lo = cells.phase[lo[0], lo[1], lo[2]]
             if t_hi == FLUID:
-                p_hi = phase[hi[0], hi[1], hi[2]]
+                p_hi = cells.phase[hi[0], hi[1], hi[2]]
             if p_lo == PHASE_GAS and p_hi == PHASE_LIQUID:
-                rho = interface_density(liq_mass, liq_volume, gas_mass, gas_volume, hi, lo, inv_cell_vol)
+                rho = interface_density(splat, hi, lo, inv_cell_vol)
             elif p_lo == PHASE_LIQUID and p_hi == PHASE_GAS:
-                rho = interface_density(liq_mass, liq_volume, gas_mass, gas_volume, lo, hi, inv_cell_vol)
+                rho = interface_density(splat, lo, hi, inv_cell_vol)
             elif (p_lo == PHASE_GAS or p_hi == PHASE_GAS) and vg > 0.0:
                 rho = mg / vg
             elif vl > 0.0:
@@ -270,56 +218,37 @@ def face_inverse_density_at(
     inv_rho[i, j, k] = value
 
 
-
-
 @wp.func
-def interface_density(
-    liq_mass: wp.array3d(dtype=float),
-    liq_volume: wp.array3d(dtype=float),
-    gas_mass: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    c_liq: wp.vec3i,
-    c_gas: wp.vec3i,
-    inv_cell_vol: float,
-):
+def interface_density(splat: Splat, c_liq: wp.vec3i, c_gas: wp.vec3i, inv_cell_vol: float):
     """theta rho_l + (1 - theta) rho_g on a face between a liquid cell and a gas cell.
 
     The level set psi = phi_liquid - phi_gas is positive on the liquid side; theta is where it
     crosses zero along the segment between the two centres.
     """
-    psi_l = (at(liq_volume, c_liq) - at(gas_volume, c_liq)) * inv_cell_vol
-    psi_g = (at(liq_volume, c_gas) - at(gas_volume, c_gas)) * inv_cell_vol
+    psi_l = (at(splat.liq_volume, c_liq) - at(splat.gas_volume, c_liq)) * inv_cell_vol
+    psi_g = (at(splat.liq_volume, c_gas) - at(splat.gas_volume, c_gas)) * inv_cell_vol
     theta = float(0.5)
     if psi_l - psi_g > 1.0e-6:
         theta = wp.clamp(psi_l / (psi_l - psi_g), 0.0, 1.0)
-    rho_l = at(liq_mass, c_liq) / at(liq_volume, c_liq)
-    rho_g = at(gas_mass, c_gas) / at(gas_volume, c_gas)
+    rho_l = at(splat.liq_mass, c_liq) / at(splat.liq_volume, c_liq)
+    rho_g = at(splat.gas_mass, c_gas) / at(splat.gas_volume, c_gas)
     return theta * rho_l + (1.0 - theta) * rho_g
 
 
-@wp.kernel
-def zero_solid_faces(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), box: Lines):
-    """Walls are at rest: the normal velocity on any face touching a solid cell is zero."""
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        zero_solid_faces_at(types, axis, vel, c[0], c[1], c[2])
+face_inverse_density = line_kernel(face_inverse_density_at)
 
 
 @wp.func
-def zero_solid_faces_at(
-    types: wp.array3d(dtype=wp.int32),
-    axis: int,
-    vel: wp.array3d(dtype=float),
-    i: int,
-    j: int,
-    k: int,
-):
+def zero_solid_faces_at(axis: int, types: wp.array3d(dtype=wp.int32), vel: wp.array3d(dtype=float), i: int, j: int,
+                        k: int):
+    """Walls are at rest: the normal velocity on any face touching a solid cell is zero."""
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     if is_solid(cell_type_at(types, lo)) or is_solid(cell_type_at(types, hi)):
         vel[i, j, k] = 0.0
+
+
+zero_solid_faces = line_kernel(zero_solid_faces_at)
 
 
 @wp.func
@@ -345,33 +274,20 @@ def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=w
     return wp.vec2i(pinned, enclosed)
 
 
-@wp.kernel
-def pressure_diagonal_and_rhs(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    inv_rho_u: wp.array3d(dtype=float),
-    inv_rho_v: wp.array3d(dtype=float),
-    inv_rho_w: wp.array3d(dtype=float),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    liq_volume: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    gas_pv: wp.array3d(dtype=float),
-    gas_kv: wp.array3d(dtype=float),
-    two_phase: int,
-    interface: int,
-    dx: float,
-    dt: float,
-    dim: int,
+@wp.func
+def pressure_diagonal_and_rhs_at(
+    step: StepParams,
     volume_rate: float,
-    diag: wp.array3d(dtype=float),
-    extra_diag: wp.array3d(dtype=float),
-    rhs: wp.array3d(dtype=float),
-    target_div: wp.array3d(dtype=float),
-    counters: wp.array(dtype=wp.int32),
     slot: int,
-    box: Lines,
+    cells: CellPhases,
+    inv_rho: FaceField,
+    vel: FaceField,
+    splat: Splat,
+    rows: PressureRows,
+    counters: wp.array(dtype=wp.int32),
+    i: int,
+    j: int,
+    k: int,
 ):
     """Diagonal and right-hand side of the one two-phase system (docs/design.md, #pressure-equation), per fluid cell c:
 
@@ -385,60 +301,33 @@ def pressure_diagonal_and_rhs(
     counters[slot] counts fluid cells, counters[slot + 1] those that pin the pressure level (an empty
     neighbour or kappa > 0): with none, the system is singular and the solver projects out the constant.
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        pressure_diagonal_and_rhs_at(types, phase, inv_rho_u, inv_rho_v, inv_rho_w, vel_u, vel_v, vel_w, liq_volume, gas_volume, gas_pv, gas_kv, two_phase, interface, dx, dt, dim, volume_rate, diag, extra_diag, rhs, target_div, counters, slot, c[0], c[1], c[2])
-
-
-@wp.func
-def pressure_diagonal_and_rhs_at(
-    types: wp.array3d(dtype=wp.int32),
-    phase: wp.array3d(dtype=wp.int32),
-    inv_rho_u: wp.array3d(dtype=float),
-    inv_rho_v: wp.array3d(dtype=float),
-    inv_rho_w: wp.array3d(dtype=float),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    liq_volume: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    gas_pv: wp.array3d(dtype=float),
-    gas_kv: wp.array3d(dtype=float),
-    two_phase: int,
-    interface: int,
-    dx: float,
-    dt: float,
-    dim: int,
-    volume_rate: float,
-    diag: wp.array3d(dtype=float),
-    extra_diag: wp.array3d(dtype=float),
-    rhs: wp.array3d(dtype=float),
-    target_div: wp.array3d(dtype=float),
-    counters: wp.array(dtype=wp.int32),
-    slot: int,
-    i: int,
-    j: int,
-    k: int,
-):
+    types = cells.types
+    phase = cells.phase
+    liq_volume = splat.liq_volume
+    gas_volume = splat.gas_volume
+    gas_kv = splat.gas_kv
+    two_phase = step.two_phase
+    interface = step.interface
+    dx = step.dx
+    dt = step.dt
+    dim = step.dim
     if two_phase != 0:
-        target_div[i, j, k] = 0.0
+        rows.target_div[i, j, k] = 0.0
     if types[i, j, k] != FLUID:
-        diag[i, j, k] = 1.0
-        extra_diag[i, j, k] = 0.0
-        rhs[i, j, k] = 0.0
+        rows.diag[i, j, k] = 1.0
+        rows.extra_diag[i, j, k] = 0.0
+        rows.rhs[i, j, k] = 0.0
         return
     inv_dx2 = 1.0 / (dx * dx)
-    d = inv_rho_u[i, j, k] + inv_rho_u[i + 1, j, k] + inv_rho_v[i, j, k] + inv_rho_v[i, j + 1, k]
-    div = cell_divergence(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), dim)
+    d = inv_rho.u[i, j, k] + inv_rho.u[i + 1, j, k] + inv_rho.v[i, j, k] + inv_rho.v[i, j + 1, k]
+    div = cell_divergence(vel.u, vel.v, vel.w, wp.vec3i(i, j, k), dim)
     sides = neighbour_kinds(types, phase, gas_kv, wp.vec3i(i, j, k), dim, two_phase)
     pinned = sides[0]
     enclosed = sides[1]
     if is_hole(liq_volume, gas_volume, two_phase, wp.vec3i(i, j, k), inv_dx2 / dx, pinned):
         enclosed = 1
     if dim == 3:
-        d += inv_rho_w[i, j, k] + inv_rho_w[i, j, k + 1]
+        d += inv_rho.w[i, j, k] + inv_rho.w[i, j, k + 1]
     b = -div / (dx * dt)
     extra = float(0.0)
     vg = float(0.0)
@@ -446,7 +335,7 @@ def pressure_diagonal_and_rhs_at(
         vg = gas_volume[i, j, k]
     if vg > 0.0 and (interface != INTERFACE_BASELINE or phase[i, j, k] == PHASE_GAS):
         extra = cell_compressibility(gas_kv[i, j, k], vg, interface, dx * dx * dx) / (dt * dt)
-        b += extra * gas_pv[i, j, k] / vg
+        b += extra * splat.gas_pv[i, j, k] / vg
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
@@ -454,51 +343,34 @@ def pressure_diagonal_and_rhs_at(
                                            inv_dx2, dx)  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
-            target_div[i, j, k] = target
-    diag[i, j, k] = d * inv_dx2 + extra
-    extra_diag[i, j, k] = extra
-    rhs[i, j, k] = b
+            rows.target_div[i, j, k] = target
+    rows.diag[i, j, k] = d * inv_dx2 + extra
+    rows.extra_diag[i, j, k] = extra
+    rows.rhs[i, j, k] = b
     wp.atomic_add(counters, slot, 1)
     wp.atomic_add(counters, slot + 1, pinned)
 
 
-@wp.kernel
-def subtract_pressure_gradient(
-    types: wp.array3d(dtype=wp.int32),
-    pressure: wp.array3d(dtype=float),
-    inv_rho: wp.array3d(dtype=float),
-    axis: int,
-    dx: float,
-    dt: float,
-    vel: wp.array3d(dtype=float),
-    valid: wp.array3d(dtype=wp.int32),
-    box: Lines,
-):
-    """u = u* - dt/rho dp/dx on faces next to fluid (p = 0 gauge in empty cells).
-
-    Marks which faces now hold trusted velocities: projected faces and solid faces bordering fluid.
-    """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        subtract_pressure_gradient_at(types, pressure, inv_rho, axis, dx, dt, vel, valid, c[0], c[1], c[2])
+pressure_diagonal_and_rhs = line_kernel(pressure_diagonal_and_rhs_at)
 
 
 @wp.func
 def subtract_pressure_gradient_at(
+    step: StepParams,
+    axis: int,
     types: wp.array3d(dtype=wp.int32),
     pressure: wp.array3d(dtype=float),
     inv_rho: wp.array3d(dtype=float),
-    axis: int,
-    dx: float,
-    dt: float,
     vel: wp.array3d(dtype=float),
     valid: wp.array3d(dtype=wp.int32),
     i: int,
     j: int,
     k: int,
 ):
+    """u = u* - dt/rho dp/dx on faces next to fluid (p = 0 gauge in empty cells).
+
+    Marks which faces now hold trusted velocities: projected faces and solid faces bordering fluid.
+    """
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -511,44 +383,31 @@ def subtract_pressure_gradient_at(
             p_lo = pressure[lo[0], lo[1], lo[2]]
         if t_hi == FLUID:
             p_hi = pressure[hi[0], hi[1], hi[2]]
-        vel[i, j, k] = vel[i, j, k] - dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx
+        vel[i, j, k] = vel[i, j, k] - step.dt * inv_rho[i, j, k] * (p_hi - p_lo) / step.dx
         ok = 1
     elif (is_solid(t_lo) and t_hi == FLUID) or (is_solid(t_hi) and t_lo == FLUID):
         ok = 1
     valid[i, j, k] = ok
 
 
-@wp.kernel
-def extrapolate_velocity(
-    vel_in: wp.array3d(dtype=float),
-    valid_in: wp.array3d(dtype=wp.int32),
-    dim: int,
-    vel_out: wp.array3d(dtype=float),
-    valid_out: wp.array3d(dtype=wp.int32),
-    box: Lines,
-):
-    """One layer of extrapolation: an untrusted face takes the mean of its trusted neighbours.
-
-    Ping-pong buffers keep the result independent of thread order.
-    """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        extrapolate_velocity_at(vel_in, valid_in, dim, vel_out, valid_out, c[0], c[1], c[2])
+subtract_pressure_gradient = line_kernel(subtract_pressure_gradient_at)
 
 
 @wp.func
 def extrapolate_velocity_at(
+    dim: int,
     vel_in: wp.array3d(dtype=float),
     valid_in: wp.array3d(dtype=wp.int32),
-    dim: int,
     vel_out: wp.array3d(dtype=float),
     valid_out: wp.array3d(dtype=wp.int32),
     i: int,
     j: int,
     k: int,
 ):
+    """One layer of extrapolation: an untrusted face takes the mean of its trusted neighbours.
+
+    Ping-pong buffers keep the result independent of thread order.
+    """
     vel_out[i, j, k] = vel_in[i, j, k]
     valid_out[i, j, k] = valid_in[i, j, k]
     if valid_in[i, j, k] == 1:
@@ -566,28 +425,15 @@ def extrapolate_velocity_at(
         valid_out[i, j, k] = 1
 
 
-@wp.kernel
-def enforce_walls(types: wp.array3d(dtype=wp.int32), axis: int, vel: wp.array3d(dtype=float), box: Lines):
+extrapolate_velocity = line_kernel(extrapolate_velocity_at)
+
+
+@wp.func
+def enforce_walls_at(axis: int, types: wp.array3d(dtype=wp.int32), vel: wp.array3d(dtype=float), i: int, j: int, k: int):
     """Zero normal velocity at solid faces; inside no-slip walls also zero the tangential velocity.
 
     Inside free-slip walls the extrapolated tangential velocity stays, so particles slide along.
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        enforce_walls_at(types, axis, vel, c[0], c[1], c[2])
-
-
-@wp.func
-def enforce_walls_at(
-    types: wp.array3d(dtype=wp.int32),
-    axis: int,
-    vel: wp.array3d(dtype=float),
-    i: int,
-    j: int,
-    k: int,
-):
     hi = wp.vec3i(i, j, k)
     lo = hi - unit(axis)
     t_lo = cell_type_at(types, lo)
@@ -598,3 +444,4 @@ def enforce_walls_at(
         vel[i, j, k] = 0.0
 
 
+enforce_walls = line_kernel(enforce_walls_at)

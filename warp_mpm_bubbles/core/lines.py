@@ -17,6 +17,8 @@ order a thread per cell visits them, and sums accumulated in thread order are un
 
 from __future__ import annotations
 
+import linecache
+
 import warp as wp
 
 
@@ -88,3 +90,37 @@ def split_lines(box: Lines, dims, parts: int) -> list[tuple[Lines, tuple[int, in
         slab.axis, slab.length = box.axis, box.length
         out.append((slab, (b - a, dims[1], dims[2])))
     return out
+
+
+# The kernel that line_kernel writes for a cell function `cell(args..., i, j, k)`: the box first, then
+# the function's own arguments but the cell.
+_WALK = '''\
+def {name}(box, {args}):
+    ti, tj, tk = wp.tid()
+    first = line_first(box, ti, tj, tk)
+    for s in range(first[box.axis], line_end(box, first)):
+        c = on_line(first, box.axis, s)
+        cell({args}, c[0], c[1], c[2])
+'''
+
+
+def line_kernel(cell) -> wp.Kernel:
+    """The kernel that walks a Lines box calling the wp.func `cell` at each of its cells: `cell`'s
+    last three arguments are the cell's indices i, j, k; the kernel's arguments are the box, then
+    `cell`'s others in their order. Named as `cell` without its `_at` suffix, in `cell`'s module,
+    documented by its docstring: so each cell kernel is written once, as a function of one cell.
+
+    Warp reads a kernel's Python source, which this writes (the loop in this module's docstring) and
+    registers with linecache under a name of its own, as dataclasses does for the methods it writes."""
+    names = list(cell.input_types)[:-3]
+    name = cell.key.removesuffix("_at")
+    module = cell.func.__module__
+    source = _WALK.format(name=name, args=", ".join(names))
+    filename = f"<line kernel {module}.{name}>"
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    scope = {"wp": wp, "line_first": line_first, "line_end": line_end, "on_line": on_line, "cell": cell}
+    exec(compile(source, filename, "exec"), scope)  # noqa: S102 (the source is the template above)
+    walk = scope[name]
+    walk.__annotations__ = {"box": Lines, **{n: cell.input_types[n] for n in names}}
+    walk.__module__, walk.__qualname__, walk.__doc__ = module, name, cell.func.__doc__
+    return wp.kernel(enable_backward=False)(walk)

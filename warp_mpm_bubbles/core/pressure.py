@@ -22,6 +22,7 @@ import warp as wp
 
 from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
+from .kernel_args import PlaneSums, PointPreconditioner, PressureOperator, plane_sums, point_preconditioner, pressure_operator
 from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
 from .threads import Parallel, line_slabs
@@ -66,27 +67,27 @@ DONE, ITERS = range(2)
 # the planes in order (sum_planes) and zeroes them for the next sum. On a GPU (a cell a thread) the
 # planes' atomics run in any order.
 @wp.func
-def add_to_plane(planes: wp.array2d(dtype=wp.float64), plane0: int, first: wp.vec3i, slot: int, value: wp.float64):
+def add_to_plane(out: PlaneSums, first: wp.vec3i, slot: int, value: wp.float64):
     if value != wp.float64(0.0):
-        wp.atomic_add(planes, first[0] - plane0, slot, value)
+        wp.atomic_add(out.planes, first[0] - out.plane0, slot, value)
 
 
 @wp.func
-def keep_residual(r: wp.array3d(dtype=float), z: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), mode: int,
-                  c: wp.vec3i, res: float, sums: wp.vec3d):
+def keep_residual(M: PointPreconditioner, c: wp.vec3i, res: float, r: wp.array3d(dtype=float),
+                  z: wp.array3d(dtype=float), sums: wp.vec3d):
     """r = res and z = M^-1 res at cell c; returns sums + (res, res^2, res z), in float64."""
-    zz = preconditioned(res, diag[c[0], c[1], c[2]], mode)
+    zz = preconditioned(res, M.diag[c[0], c[1], c[2]], M.mode)
     r[c[0], c[1], c[2]] = res
     z[c[0], c[1], c[2]] = zz
     return sums + wp.vec3d(wp.float64(res), wp.float64(res * res), wp.float64(res * zz))
 
 
 @wp.func
-def add_residual_sums(planes: wp.array2d(dtype=wp.float64), plane0: int, first: wp.vec3i, sums: wp.vec3d):
+def add_residual_sums(out: PlaneSums, first: wp.vec3i, sums: wp.vec3d):
     """A line's (sum r, r . r, r . z) into its plane's R_SUM, RR and RZ."""
-    add_to_plane(planes, plane0, first, R_SUM, sums[0])
-    add_to_plane(planes, plane0, first, RR, sums[1])
-    add_to_plane(planes, plane0, first, RZ, sums[2])
+    add_to_plane(out, first, R_SUM, sums[0])
+    add_to_plane(out, first, RR, sums[1])
+    add_to_plane(out, first, RZ, sums[2])
 
 
 @wp.kernel
@@ -105,22 +106,8 @@ def sum_planes(done: wp.array(dtype=wp.int32), planes: wp.array2d(dtype=wp.float
 
 
 @wp.kernel
-def apply_operator(
-    walk: Lines,
-    done: wp.array(dtype=wp.int32),
-    types: wp.array3d(dtype=wp.int32),
-    diag: wp.array3d(dtype=float),
-    inv_rho_u: wp.array3d(dtype=float),
-    inv_rho_v: wp.array3d(dtype=float),
-    inv_rho_w: wp.array3d(dtype=float),
-    inv_dx2: float,
-    dim: int,
-    inside: int,
-    p: wp.array3d(dtype=float),
-    out: wp.array3d(dtype=float),
-    planes: wp.array2d(dtype=wp.float64),
-    plane0: int,
-):
+def apply_operator(walk: Lines, inside: int, done: wp.array(dtype=wp.int32), A: PressureOperator,
+                   p: wp.array3d(dtype=float), out: wp.array3d(dtype=float), sums: PlaneSums):
     """out = A p on the fluid cells of `walk` (0 elsewhere in it); planes[.., DAD] += p . A p.
 
     inside = 1: p is 0 on every cell of the fluid box that is not FLUID (the solver keeps x, d and z
@@ -130,6 +117,11 @@ def apply_operator(
     tested (fluid_value)."""
     if done[0] != 0:
         return
+    types = A.types
+    inv_rho_u = A.inv_rho.u
+    inv_rho_v = A.inv_rho.v
+    inv_rho_w = A.inv_rho.w
+    dim = A.dim
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
     dot = wp.float64(0.0)
@@ -158,10 +150,10 @@ def apply_operator(
             if dim == 3:
                 n += inv_rho_w[i, j, k] * fluid_value(types, p, i, j, k - 1)
                 n += inv_rho_w[i, j, k + 1] * fluid_value(types, p, i, j, k + 1)
-        Ap = diag[i, j, k] * p[i, j, k] - n * inv_dx2
+        Ap = A.diag[i, j, k] * p[i, j, k] - n * A.inv_dx2
         out[i, j, k] = Ap
         dot += wp.float64(p[i, j, k] * Ap)
-    add_to_plane(planes, plane0, first, DAD, dot)
+    add_to_plane(sums, first, DAD, dot)
 
 
 @wp.kernel
@@ -186,8 +178,8 @@ def mask_and_bound(region: Lines, types: wp.array3d(dtype=wp.int32), x: wp.array
 
 
 @wp.kernel
-def fluid_sums(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-               x: wp.array3d(dtype=float), squares: int, planes: wp.array2d(dtype=wp.float64), plane0: int):
+def fluid_sums(walk: Lines, squares: int, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
+               x: wp.array3d(dtype=float), sums: PlaneSums):
     """planes[.., 0] += the sum of x over the fluid cells, or of x^2 if `squares`."""
     if done[0] != 0:
         return
@@ -201,13 +193,12 @@ def fluid_sums(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dt
             if squares != 0:
                 v = v * v
             total += wp.float64(v)
-    add_to_plane(planes, plane0, first, 0, total)
+    add_to_plane(sums, first, 0, total)
 
 
 @wp.kernel
 def fluid_dot(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-              x: wp.array3d(dtype=float), y: wp.array3d(dtype=float), planes: wp.array2d(dtype=wp.float64),
-              plane0: int):
+              x: wp.array3d(dtype=float), y: wp.array3d(dtype=float), sums: PlaneSums):
     """planes[.., RZ_MG] += x . y, planes[.., Z_SUM] += the sum of y over the fluid cells."""
     if done[0] != 0:
         return
@@ -221,8 +212,8 @@ def fluid_dot(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(dty
         if types[i, j, k] == FLUID:
             dot += wp.float64(x[i, j, k] * y[i, j, k])
             total += wp.float64(y[i, j, k])
-    add_to_plane(planes, plane0, first, RZ_MG, dot)
-    add_to_plane(planes, plane0, first, Z_SUM, total)
+    add_to_plane(sums, first, RZ_MG, dot)
+    add_to_plane(sums, first, Z_SUM, total)
 
 
 @wp.kernel
@@ -242,18 +233,9 @@ def shift_fluid(walk: Lines, done: wp.array(dtype=wp.int32), types: wp.array3d(d
 
 
 @wp.kernel
-def start_iteration(
-    walk: Lines,
-    done: wp.array(dtype=wp.int32),
-    b: wp.array3d(dtype=float),
-    Ax: wp.array3d(dtype=float),
-    diag: wp.array3d(dtype=float),
-    mode: int,
-    r: wp.array3d(dtype=float),
-    d: wp.array3d(dtype=float),
-    planes: wp.array2d(dtype=wp.float64),
-    plane0: int,
-):
+def start_iteration(walk: Lines, M: PointPreconditioner, done: wp.array(dtype=wp.int32), b: wp.array3d(dtype=float),
+                    Ax: wp.array3d(dtype=float), r: wp.array3d(dtype=float), d: wp.array3d(dtype=float),
+                    out: PlaneSums):
     """r = b - A x, d = M^-1 r; planes: sum r, r . r, r . M^-1 r."""
     if done[0] != 0:
         return
@@ -262,26 +244,24 @@ def start_iteration(
     sums = wp.vec3d()
     for s in range(first[walk.axis], line_end(walk, first)):
         c = on_line(first, walk.axis, s)
-        sums = keep_residual(r, d, diag, mode, c, b[c[0], c[1], c[2]] - Ax[c[0], c[1], c[2]], sums)
-    add_residual_sums(planes, plane0, first, sums)
+        sums = keep_residual(M, c, b[c[0], c[1], c[2]] - Ax[c[0], c[1], c[2]], r, d, sums)
+    add_residual_sums(out, first, sums)
 
 
 @wp.kernel
 def step_solution(
     walk: Lines,
-    done: wp.array(dtype=wp.int32),
-    dots: wp.array2d(dtype=wp.float64),
     row: int,
     rz_slot: int,
+    M: PointPreconditioner,
+    done: wp.array(dtype=wp.int32),
+    dots: wp.array2d(dtype=wp.float64),
     d: wp.array3d(dtype=float),
     Ad: wp.array3d(dtype=float),
-    diag: wp.array3d(dtype=float),
-    mode: int,
     x: wp.array3d(dtype=float),
     r: wp.array3d(dtype=float),
     z: wp.array3d(dtype=float),
-    planes: wp.array2d(dtype=wp.float64),
-    plane0: int,
+    out: PlaneSums,
 ):
     """alpha = rz / d.Ad from the device; x += alpha d, r -= alpha A d, z = M^-1 r; planes: sum r, r . r,
     r . z. Nothing if d.Ad <= 0 (the search direction lost positivity: round-off at convergence)."""
@@ -298,8 +278,8 @@ def step_solution(
         c = on_line(first, walk.axis, s)
         i, j, k = c[0], c[1], c[2]
         x[i, j, k] = x[i, j, k] + alpha * d[i, j, k]
-        sums = keep_residual(r, z, diag, mode, c, r[i, j, k] - alpha * Ad[i, j, k], sums)
-    add_residual_sums(planes, plane0, first, sums)
+        sums = keep_residual(M, c, r[i, j, k] - alpha * Ad[i, j, k], r, z, sums)
+    add_residual_sums(out, first, sums)
 
 
 @wp.kernel
@@ -341,8 +321,8 @@ def zero_if_trivial(walk: Lines, sums: wp.array2d(dtype=wp.float64), x: wp.array
 
 
 @wp.kernel
-def update_direction(walk: Lines, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64), row: int,
-                     rz_slot: int, z: wp.array3d(dtype=float), d: wp.array3d(dtype=float)):
+def update_direction(walk: Lines, row: int, rz_slot: int, done: wp.array(dtype=wp.int32), dots: wp.array2d(dtype=wp.float64),
+                     z: wp.array3d(dtype=float), d: wp.array3d(dtype=float)):
     """d = z + beta d with beta = rz(row) / rz(row - 1), from the device."""
     if done[0] != 0:
         return
@@ -498,7 +478,7 @@ class PressureSolver:
 
     def _sum_fluid(self, types, v, out_slot: int, squares: bool):
         """scalars[out_slot] = the sum of v (or of v^2) over the fluid cells."""
-        self._run(self._record_cells(fluid_sums, [self.done, types, v, int(squares), self.planes, self.box[0][0]]))
+        self._run(self._record_cells(fluid_sums, [int(squares), self.done, types, v, plane_sums(self.planes, self.box[0][0])]))
         self._run(self._reduce(0, 1, self.scalars, out_slot))
 
     def _center(self, types, v, sums, row: int, slot: int, n: int):
@@ -540,19 +520,20 @@ class PressureSolver:
 
     def _iterate(self, system, b, x, mode: int, project: int, tol: float, max_iter: int):
         """The PCG iterations from the warm start x; returns (iterations, relative residual squared)."""
-        types, diag, done, rows, planes, plane0 = system.types, system.diag, self.done, self.rows, self.planes, self.box[0][0]
+        types, done, rows = system.types, self.done, self.rows
+        sums = plane_sums(self.planes, self.box[0][0])
+        M = point_preconditioner(system.diag, mode)
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
-        operator = [done, types, diag, *system.inv_rho, self.inv_dx2, self.dim, self.inside]
+        A = pressure_operator(system, self.inv_dx2, self.dim)
         # One iteration's launches, recorded once for this solve (the row is set on each replay).
-        apply_d = self._record_cells(apply_operator, [*operator, self.d, self.Ad, planes, plane0])
+        apply_d = self._record_cells(apply_operator, [self.inside, done, A, self.d, self.Ad, sums])
         reduce_dAd = self._reduce(DAD, 1, rows, DAD)
-        step = self._record_cells(step_solution, [done, rows, 0, rz_slot, self.d, self.Ad, diag, mode, x, self.r,
-                                                  self.z, planes, plane0])
+        step = self._record_cells(step_solution, [0, rz_slot, M, done, rows, self.d, self.Ad, x, self.r, self.z, sums])
         reduce_step = self._reduce(R_SUM, 3, rows, R_SUM)
         check = self._record(check_convergence, [rows, 0, self.scalars, wp.float64(tol * tol), done, self.info])
-        dot_z = self._record_cells(fluid_dot, [done, types, self.r, self.z, planes, plane0])
+        dot_z = self._record_cells(fluid_dot, [done, types, self.r, self.z, sums])
         reduce_dot = self._reduce(RZ_MG, 2, rows, RZ_MG)
-        update = self._record_cells(update_direction, [done, rows, 0, rz_slot, self.z, self.d])
+        update = self._record_cells(update_direction, [0, rz_slot, done, rows, self.z, self.d])
 
         def precondition(z, row, dot):
             """z = M^-1 r by the V-cycle; rows[row] gets r . z and the sum of z. A singular system's r
@@ -568,13 +549,13 @@ class PressureSolver:
                 self._center(types, z, rows, row, Z_SUM, project)
 
         # Row 0: r = b - A x, d = M^-1 r. A x's p . A p lands in row 0's DAD slot, which nothing reads.
-        self._run(self._record_cells(apply_operator, [*operator, x, self.Ad, planes, plane0]))
+        self._run(self._record_cells(apply_operator, [self.inside, done, A, x, self.Ad, sums]))
         self._run(reduce_dAd, 0)
-        self._run(self._record_cells(start_iteration, [done, b, self.Ad, diag, mode, self.r, self.d, planes, plane0]))
+        self._run(self._record_cells(start_iteration, [M, done, b, self.Ad, self.r, self.d, sums]))
         self._run(reduce_step, 0)
         self._run(check, 0)
         if mode == MULTIGRID:
-            precondition(self.d, 0, self._record_cells(fluid_dot, [done, types, self.r, self.d, planes, plane0]))
+            precondition(self.d, 0, self._record_cells(fluid_dot, [done, types, self.r, self.d, sums]))
         # Chunks of iterations between reads: the first as long as the last solve took (warm-started
         # steps take about as many), then check_every. Iterations past convergence are no-ops.
         row, stop, chunk = 0, False, self.predicted

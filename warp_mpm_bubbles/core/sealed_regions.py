@@ -64,8 +64,8 @@ def cell_of(label: int, shape: wp.vec3i):
 
 
 @wp.kernel
-def start_labels(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
-                 pinned: wp.array3d(dtype=wp.int32), box: Lines):
+def start_labels(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+                 pinned: wp.array3d(dtype=wp.int32)):
     """labels = the cell's own linear index on fluid cells, -1 elsewhere; pinned = 0."""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
@@ -80,8 +80,8 @@ def start_labels(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.
 
 
 @wp.kernel
-def sweep_labels(types: wp.array3d(dtype=wp.int32), weight: wp.array3d(dtype=float),
-                 labels: wp.array3d(dtype=wp.int32), box: Lines):
+def sweep_labels(box: Lines, types: wp.array3d(dtype=wp.int32), weight: wp.array3d(dtype=float),
+                 labels: wp.array3d(dtype=wp.int32)):
     """Each thread walks its whole line along box.axis (the axis of `weight`'s faces; face s lies
     between cells s - 1 and s) forward, then back, giving each fluid cell the smallest label of the
     run of coupled cells it lies in."""
@@ -123,10 +123,10 @@ def face_weight(inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=
 
 
 @wp.kernel
-def check_and_mark(types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dtype=float),
+def check_and_mark(box: Lines, types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dtype=float),
                    inv_rho_u: wp.array3d(dtype=float), inv_rho_v: wp.array3d(dtype=float),
                    inv_rho_w: wp.array3d(dtype=float), labels: wp.array3d(dtype=wp.int32), dim: int,
-                   pinned: wp.array3d(dtype=wp.int32), counters: wp.array(dtype=wp.int32), box: Lines):
+                   pinned: wp.array3d(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
     """counters[SLOT_UNSETTLED] = 1 if two coupled fluid cells still differ in label (the sweeps go on);
     pinned[root] = 1 for the root (the cell its label names) of each region with a pinned row: a gas
     term, or a face of weight to a cell that is not fluid (Dirichlet p = 0; a solid face has none)."""
@@ -156,7 +156,7 @@ def check_and_mark(types: wp.array3d(dtype=wp.int32), extra_diag: wp.array3d(dty
 
 
 @wp.kernel
-def clear_pinned(pinned: wp.array3d(dtype=wp.int32), box: Lines):
+def clear_pinned(box: Lines, pinned: wp.array3d(dtype=wp.int32)):
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     for s in range(first[box.axis], line_end(box, first)):
@@ -165,8 +165,8 @@ def clear_pinned(pinned: wp.array3d(dtype=wp.int32), box: Lines):
 
 
 @wp.kernel
-def count_regions(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
-                  pinned: wp.array3d(dtype=wp.int32), counters: wp.array(dtype=wp.int32), box: Lines):
+def count_regions(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+                  pinned: wp.array3d(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
     """counters[SLOT_REGIONS] += regions (their roots), counters[SLOT_SEALED] += those unpinned."""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
@@ -180,7 +180,7 @@ def count_regions(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp
 
 
 @wp.kernel
-def clear_sums(sums: wp.array3d(dtype=wp.float64), sizes: wp.array3d(dtype=wp.int32), box: Lines):
+def clear_sums(box: Lines, sums: wp.array3d(dtype=wp.float64), sizes: wp.array3d(dtype=wp.int32)):
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     for s in range(first[box.axis], line_end(box, first)):
@@ -202,9 +202,9 @@ def sealed_root(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.i
 
 
 @wp.kernel
-def sum_sealed(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+def sum_sealed(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
                pinned: wp.array3d(dtype=wp.int32), field: wp.array3d(dtype=float),
-               sums: wp.array3d(dtype=wp.float64), sizes: wp.array3d(dtype=wp.int32), box: Lines):
+               sums: wp.array3d(dtype=wp.float64), sizes: wp.array3d(dtype=wp.int32)):
     """sums[root], sizes[root] = the field's sum and the cell count of each sealed region.
     One launch, never split: on the CPU its threads run in order, so the float sums do too."""
     ti, tj, tk = wp.tid()
@@ -219,9 +219,9 @@ def sum_sealed(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.in
 
 
 @wp.kernel
-def subtract_sealed_mean(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+def subtract_sealed_mean(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
                          pinned: wp.array3d(dtype=wp.int32), sums: wp.array3d(dtype=wp.float64),
-                         sizes: wp.array3d(dtype=wp.int32), field: wp.array3d(dtype=float), box: Lines):
+                         sizes: wp.array3d(dtype=wp.int32), field: wp.array3d(dtype=float)):
     """In each sealed region: field -= its mean (sum_sealed's)."""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
@@ -235,9 +235,9 @@ def subtract_sealed_mean(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(d
 
 
 @wp.kernel
-def pin_roots(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+def pin_roots(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
               pinned: wp.array3d(dtype=wp.int32), diag: wp.array3d(dtype=float),
-              extra_diag: wp.array3d(dtype=float), box: Lines):
+              extra_diag: wp.array3d(dtype=float)):
     """The root of each sealed region gets its diagonal once more, as a mass term (extra_diag):
     the region's constant is pinned (p = 0 at the root for a consistent right-hand side)."""
     ti, tj, tk = wp.tid()
@@ -252,10 +252,10 @@ def pin_roots(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int
                 diag[c[0], c[1], c[2]] = d + d
 
 @wp.kernel
-def sum_sealed_inflow(types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
+def sum_sealed_inflow(box: Lines, types: wp.array3d(dtype=wp.int32), labels: wp.array3d(dtype=wp.int32),
                       pinned: wp.array3d(dtype=wp.int32), vel_u: wp.array3d(dtype=float),
                       vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float), dim: int,
-                      scale: wp.float64, squeezed: wp.array(dtype=wp.float64), box: Lines):
+                      scale: wp.float64, squeezed: wp.array(dtype=wp.float64)):
     """squeezed[0] -= scale * the net outflow of the sealed cells: the faces between two of them
     cancel, so what is left is what the solid faces around the sealed regions push in. One launch,
     never split (on the CPU its threads run in order, so the float sum does too)."""
@@ -311,7 +311,7 @@ class SealedRegions:
         for a in sim.grid.axes:
             slabs = axis_lines(lo, hi, a, sim.parallel.threads)
             if slabs:
-                sim._launch_parts(sweep_labels, [(d, [types, inv_rho[a], self.labels, box]) for box, d in slabs])
+                sim._launch_parts(sweep_labels, [(d, [box, types, inv_rho[a], self.labels]) for box, d in slabs])
 
     def _tally(self, sim, types, inv_rho, extra_diag, counters):
         lines = sim.region.cell_lines
@@ -347,7 +347,7 @@ class SealedRegions:
     def _remove_means(self, sim, types, field):
         lines = sim.region.cell_lines
         sim.launch_lines(clear_sums, lines, [self.sums, self.sizes])
-        sim.launch(sum_sealed, lines[1], [types, self.labels, self.pinned, field, self.sums, self.sizes, lines[0]])
+        sim.launch(sum_sealed, lines[1], [lines[0], types, self.labels, self.pinned, field, self.sums, self.sizes])
         sim.launch_lines(subtract_sealed_mean, lines, [types, self.labels, self.pinned, self.sums, self.sizes, field])
 
     def settle(self, sim, fields, counts, dt: float) -> bool:
@@ -361,8 +361,8 @@ class SealedRegions:
         if not sealed:
             return False
         lines = sim.region.cell_lines
-        sim.launch(sum_sealed_inflow, lines[1], [fields.types, self.labels, self.pinned, *fields.vel, sim.grid.dim,
-                                                 wp.float64(1000.0 * dt / sim.grid.dx), self.squeezed, lines[0]])
+        sim.launch(sum_sealed_inflow, lines[1], [lines[0], fields.types, self.labels, self.pinned, *fields.vel,
+                                                 sim.grid.dim, wp.float64(1000.0 * dt / sim.grid.dx), self.squeezed])
         if regions == 1:
             return False
         self._remove_means(sim, fields.types, fields.rhs)

@@ -28,6 +28,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
+from . import kernel_args
 from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
@@ -367,29 +368,29 @@ class Simulation:
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch_lines(gk.momentum_to_velocity, r.face_lines[a], [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a]])
+            self.launch_lines(gk.momentum_to_velocity, r.face_lines[a], [self.gravity[a], dt, f.mom[a], f.face_mass[a], f.vel[a]])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
+        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
         self.launch_lines(gk.classify_cells, r.cell_lines,
-                          [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
-                           wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types])
+                          [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.cell_count,
+                           kernel_args.splat(f), f.types])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
         for a in g.axes:
-            self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [f.types, a, f.vel[a]])
+            self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [a, f.types, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
-                              [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume,
-                               self.two_phase, self.interface, a, 1.0 / g.dx**3, f.inv_rho[a]])
+                              [step, a, kernel_args.cell_phases(f), kernel_args.splat(f), f.inv_rho[a]])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        inputs = [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
-                  self.two_phase, self.interface, g.dx, dt, g.dim,
-                  volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
-                  f.diag, f.extra_diag, f.rhs, f.target_div, f.counters]
+        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
+        rate = volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt)
+        fields = [kernel_args.cell_phases(f), kernel_args.face_field(f.inv_rho), kernel_args.face_field(f.vel),
+                  kernel_args.splat(f), kernel_args.pressure_rows(f), f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
-        self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
+        self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
                                                           for q, (slab, d) in enumerate(line_slabs(*r.cell_lines, self.parallel.threads))])
 
     def _solve_pressure(self, dt: float):
@@ -418,9 +419,10 @@ class Simulation:
         if apart:
             self.sealed.center(self, f)
         self.stats.record(info)
+        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
-                              [f.types, f.pressure, f.inv_rho[a], a, g.dx, dt, f.vel[a], f.valid[a]])
+                              [step, a, f.types, f.pressure, f.inv_rho[a], f.vel[a], f.valid[a]])
 
     def _settle_sealed(self, counts, n_fluid: int, dt: float) -> bool:
         """Stop a run whose solids squeeze liquid they shut in; make each sealed region solvable on
@@ -438,10 +440,10 @@ class Simulation:
         for a in g.axes:
             for _ in range(EXTRAPOLATION_LAYERS):
                 self.launch_lines(gk.extrapolate_velocity, r.face_lines[a],
-                                  [vel[a], valid[a], g.dim, f.vel_tmp[a], f.valid_tmp[a]])
+                                  [g.dim, vel[a], valid[a], f.vel_tmp[a], f.valid_tmp[a]])
                 vel[a], f.vel_tmp[a] = f.vel_tmp[a], vel[a]
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
-            self.launch_lines(gk.enforce_walls, r.face_lines[a], [f.types, a, vel[a]])
+            self.launch_lines(gk.enforce_walls, r.face_lines[a], [a, f.types, vel[a]])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
 
@@ -474,13 +476,13 @@ class Simulation:
 
     def launch_lines(self, kernel, lines, inputs):
         """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
-        writes only what it walks: lines = (Lines, dims), the Lines struct its last argument. A box of
+        writes only what it walks: lines = (Lines, dims), the Lines struct its first argument. A box of
         SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
         slabs = line_slabs(*lines, self.parallel.threads)
         if len(slabs) == 1:
-            self.launch(kernel, slabs[0][1], [*inputs, slabs[0][0]])
+            self.launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
         else:
-            self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in slabs])
+            self._launch_parts(kernel, [(d, [slab, *inputs]) for slab, d in slabs])
 
     def launch_particles(self, kernel, inputs):
         """Launch a per-particle kernel whose first argument is the index of its first particle and

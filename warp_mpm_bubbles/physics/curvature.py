@@ -29,9 +29,9 @@ def inner_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32
 
 
 @wp.kernel
-def height_fraction(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
+def height_fraction(box: Lines, liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
                     types: wp.array3d(dtype=wp.int32), inv_cell_vol: float, dim: int, has_gas: int,
-                    fraction: wp.array3d(dtype=float), box: Lines):
+                    fraction: wp.array3d(dtype=float)):
     """The liquid fraction the heights sum, as psi = 2 phi - 1 (not clamped). Away from air (no EMPTY
     cell in the 3^dim block) it is the liquid's share of the particles' volume, L / (L + G): exactly
     +-1 in either bulk, where L / V alone carries the particles' packing noise (6% a cell), which the
@@ -108,8 +108,8 @@ def column_height(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.
 
 
 @wp.kernel
-def column_heights(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), dim: int,
-                   lo: wp.vec3i, hi: wp.vec3i, heights: wp.array3d(dtype=wp.vec3), box: Lines):
+def column_heights(box: Lines, fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), dim: int,
+                   lo: wp.vec3i, hi: wp.vec3i, heights: wp.array3d(dtype=wp.vec3)):
     """Per cell, the column_height along each axis (-1 where the column is not valid; a height is
     >= 0). Launched over the box [lo, hi) grown by a cell, since the curvature at a cell reads the
     columns of its neighbours: each column is summed once, not by all nine cells."""
@@ -185,9 +185,9 @@ def centred_column(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, l
 
 
 @wp.kernel
-def surface_curvature(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
+def surface_curvature(box: Lines, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
                       heights: wp.array3d(dtype=wp.vec3), dx: float, dim: int, curvature: wp.array3d(dtype=float),
-                      from_heights: wp.array3d(dtype=float), box: Lines):
+                      from_heights: wp.array3d(dtype=float)):
     """kappa near the liquid's surface only (where the smoothed psi, `level`, is not +-1): from the
     column `heights` along the axis nearest the normal where the columns around the cell are valid
     (`from_heights` 1), else div(grad psi / |grad psi|) of `level`, central differences (thin films,
@@ -256,8 +256,8 @@ def surface_curvature_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dt
 
 
 @wp.kernel
-def average_curvature(curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float), dim: int,
-                      out: wp.array3d(dtype=float), box: Lines):
+def average_curvature(box: Lines, curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float), dim: int,
+                      out: wp.array3d(dtype=float)):
     """A height-function curvature becomes the mean of those in its 3^dim block (binomial weights).
     Each measures the same stretch of surface, so on a circle they agree and the mean keeps the value
     (no bias, where smoothing the fraction first flattened the heights: +6% at 8 cells per radius);

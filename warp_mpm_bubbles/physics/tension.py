@@ -27,8 +27,7 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def liquid_level_set(liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float),
-                     box: Lines):
+def liquid_level_set(box: Lines, liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float)):
     """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface.
     (box: the cells of the launch, a line a thread, core/lines.py; as below: each kernel is its
     loop over a line and an `_at` function for one cell.)"""
@@ -52,8 +51,8 @@ def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.in
 
 
 @wp.kernel
-def smooth_level_set(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
-                     out: wp.array3d(dtype=float), box: Lines):
+def smooth_level_set(box: Lines, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
+                     out: wp.array3d(dtype=float)):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
     capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
@@ -95,10 +94,10 @@ def smooth_level_set_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dty
 
 
 @wp.kernel
-def apply_surface_tension(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+def apply_surface_tension(box: Lines, types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
                           level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
                           inv_rho: wp.array3d(dtype=float), sigma: float, axis: int, dx: float, dt: float,
-                          vel: wp.array3d(dtype=float), box: Lines):
+                          vel: wp.array3d(dtype=float)):
     """The pressure jump [p] = sigma kappa across the liquid's surface (Kang, Fedkiw & Liu 2000).
 
     On a face between a liquid cell L and a gas or empty cell N, the projection must see

@@ -157,3 +157,43 @@ def plane_sums(planes, plane0: int) -> PlaneSums:
     s = PlaneSums()
     s.planes, s.plane0 = planes, plane0
     return s
+
+
+# The particles' (core/state.py).
+@wp.struct
+class Particles:
+    """The arrays every particle has (state.PARTICLE_FIELDS) that the transfers read and write."""
+
+    x: wp.array(dtype=wp.vec3)  # position, m
+    v: wp.array(dtype=wp.vec3)  # velocity, m/s
+    C: wp.array(dtype=wp.mat33)  # APIC affine matrix: row a is the gradient of velocity component a
+    mass: wp.array(dtype=float)  # kg
+    vol0: wp.array(dtype=float)  # rest volume, m^3
+    J: wp.array(dtype=float)  # volume ratio: the volume is vol0 J
+    phase: wp.array(dtype=wp.int32)  # PHASE_* (grid.py)
+    active: wp.array(dtype=wp.int32)  # RETIRED, ACTIVE, LEAVING or AIRBORNE (grid.py)
+    gas_law: wp.array(dtype=wp.int32)  # the gas's law (core/gas_law.py)
+    gas_gamma: wp.array(dtype=float)  # the gas's heat-capacity ratio
+
+
+@wp.struct
+class FacePairs:
+    """p2g's (momentum, mass) pairs on the faces, one array per axis (as FaceField)."""
+
+    u: wp.array3d(dtype=wp.vec2)
+    v: wp.array3d(dtype=wp.vec2)
+    w: wp.array3d(dtype=wp.vec2)
+
+
+def particles(state) -> Particles:
+    """The struct of a ParticleState's arrays (rebuilt at each launch: the arrays grow)."""
+    p = Particles()
+    p.x, p.v, p.C, p.mass, p.vol0, p.J = state.x, state.v, state.C, state.mass, state.vol0, state.J
+    p.phase, p.active, p.gas_law, p.gas_gamma = state.phase, state.active, state.gas_law, state.gas_gamma
+    return p
+
+
+def face_pairs(arrays) -> FacePairs:
+    f = FacePairs()
+    f.u, f.v, f.w = arrays
+    return f

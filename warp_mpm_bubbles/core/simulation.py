@@ -347,7 +347,7 @@ class Simulation:
         f, p, r = self.fields, self.particles, region or self.region.whole
         for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
-        args = [p.x, p.v, p.C, p.mass, p.vol0, p.phase, p.active, self.geometry, *f.face_pairs, f.cell_pairs,
+        args = [self.geometry, kernel_args.particles(p), kernel_args.face_pairs(f.face_pairs), f.cell_pairs,
                 f.cell_count, f.nonfinite]
         self.launch_splat(P2G[self.grid.dim], args, r)
         for a in range(3):
@@ -453,15 +453,16 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        args = [*f.vel, *(f.gas_vel or f.vel), self.geometry, dt, p.x, p.v, p.C, p.J, p.active, p.phase, gas_J_from_cells]
+        args = [self.geometry, kernel_args.face_field(f.vel), kernel_args.face_field(f.gas_vel or f.vel),
+                kernel_args.particles(p)]
         if self.parallel.threads == 1:
-            self.launch(G2P[self.grid.dim], p.count, [*args, 0, f.max_speed, 0])
+            self.launch(G2P[self.grid.dim], p.count, [0, dt, gas_J_from_cells, 0, *args, f.max_speed])
         else:
             # One part per thread: particles are independent; their largest speed, combined exactly.
             self.speed_parts.zero_()
             cuts = split(0, p.count, self.parallel.threads)
             line = threads.CACHE_LINE_FLOATS
-            self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
+            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args, self.speed_parts])
                                                     for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
             self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
         self.book_outflow()

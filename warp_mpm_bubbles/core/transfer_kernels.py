@@ -12,6 +12,7 @@ from .geometry import GridGeometry
 from .gas_law import gas_compressibility, gas_pressure
 from .grid import ACTIVE, AIRBORNE, FLUID, LEAVING, PHASE_GAS, PHASE_LIQUID
 from .boundary import clamp_to_domain, fly, keep_in_domain, open_wall_exit, wall_stopped  # noqa: F401 (re-exported)
+from .kernel_args import FaceField, FacePairs, Particles, Splat
 from .lines import Lines, line_end, line_first, on_line
 
 wp.set_module_options({"enable_backward": False})
@@ -75,41 +76,28 @@ def grid_coord(x: wp.vec3, origin: wp.vec3, inv_dx: float, offset: wp.vec3):
 
 
 @wp.kernel
-def p2g_gas(
-    x: wp.array(dtype=wp.vec3),
-    pmass: wp.array(dtype=float),
-    pvol0: wp.array(dtype=float),
-    J: wp.array(dtype=float),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    law: wp.array(dtype=wp.int32),
-    gamma: wp.array(dtype=float),
-    p_atm: float,
-    geo: GridGeometry,
-    gas_mass: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    gas_pv: wp.array3d(dtype=float),
-    gas_kv: wp.array3d(dtype=float),
-    gas_count: wp.array3d(dtype=wp.int32),
-    x_lo: int,
-    x_hi: int,
-):
-    """Gas cell state, volume-weighted: mass, current volume V0 J, p V and kappa V (runs only with gas).
-    Only cells with x index in [x_lo, x_hi) are written (a slab a part, as p2g: every cell still sums
-    in particle order, whatever the split)."""
+def p2g_gas(p_atm: float, geo: GridGeometry, particles: Particles, splat: Splat, gas_count: wp.array3d(dtype=wp.int32),
+            x_lo: int, x_hi: int):
+    """Gas cell state, volume-weighted: splat's gas mass, current volume V0 J, p V and kappa V, and the
+    gas particles per cell (runs only with gas). Only cells with x index in [x_lo, x_hi) are written (a
+    slab a part, as p2g: every cell still sums in particle order, whatever the split)."""
+    x = particles.x
+    J = particles.J
+    law = particles.gas_law
+    gamma = particles.gas_gamma
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
     domain_hi = geo.domain_hi
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
     s = make_stencil(grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim)
     if s.base[0] + 2 < x_lo or s.base[0] >= x_hi:  # the stencil misses this part's slab
         return
-    vol = pvol0[p] * J[p]
+    vol = particles.vol0[p] * J[p]
     pg = gas_pressure(law[p], J[p], gamma[p], p_atm)
     kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)
     for i in range(wp.max(x_lo - s.base[0], 0), wp.min(x_hi - s.base[0], 3)):
@@ -117,10 +105,10 @@ def p2g_gas(
             for k in range(s.nk):
                 w = s.wx[i] * s.wy[j] * s.wz[k]
                 n = s.base + wp.vec3i(i, j, k)
-                wp.atomic_add(gas_mass, n[0], n[1], n[2], w * pmass[p])
-                wp.atomic_add(gas_volume, n[0], n[1], n[2], w * vol)
-                wp.atomic_add(gas_pv, n[0], n[1], n[2], w * vol * pg)
-                wp.atomic_add(gas_kv, n[0], n[1], n[2], w * vol * kappa)
+                wp.atomic_add(splat.gas_mass, n[0], n[1], n[2], w * particles.mass[p])
+                wp.atomic_add(splat.gas_volume, n[0], n[1], n[2], w * vol)
+                wp.atomic_add(splat.gas_pv, n[0], n[1], n[2], w * vol * pg)
+                wp.atomic_add(splat.gas_kv, n[0], n[1], n[2], w * vol * kappa)
     c = (xp - origin) * inv_dx
     cell_x = int(wp.floor(c[0]))
     if cell_x >= x_lo and cell_x < x_hi:
@@ -129,16 +117,14 @@ def p2g_gas(
 
 @wp.kernel
 def gas_volume_rate(
-    types: wp.array3d(dtype=wp.int32),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    target_div: wp.array3d(dtype=float),
+    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
     dx: float,
     dim: int,
+    types: wp.array3d(dtype=wp.int32),
+    vel: FaceField,
+    gas_volume: wp.array3d(dtype=float),
+    target_div: wp.array3d(dtype=float),
     rate: wp.array3d(dtype=float),
-    lo: wp.vec3i,  # first index of the launch, which may cover a box (core/active_box.py)
 ):
     """The volume change per second that belongs to the gas in each cell, per unit gas volume.
 
@@ -153,9 +139,9 @@ def gas_volume_rate(
     vg = gas_volume[i, j, k]
     if types[i, j, k] != FLUID or vg <= 0.0:
         return
-    div = (vel_u[i + 1, j, k] - vel_u[i, j, k] + vel_v[i, j + 1, k] - vel_v[i, j, k]) / dx
+    div = (vel.u[i + 1, j, k] - vel.u[i, j, k] + vel.v[i, j + 1, k] - vel.v[i, j, k]) / dx
     if dim == 3:
-        div += (vel_w[i, j, k + 1] - vel_w[i, j, k]) / dx
+        div += (vel.w[i, j, k + 1] - vel.w[i, j, k]) / dx
     rate[i, j, k] = (div - target_div[i, j, k]) * dx * dx * dx / vg
 
 
@@ -379,17 +365,9 @@ def _p2g_kernel(dim: int):
 
     @wp.kernel(enable_backward=False, name="p2g")
     def p2g_fused(
-        x: wp.array(dtype=wp.vec3),
-        v: wp.array(dtype=wp.vec3),
-        C: wp.array(dtype=wp.mat33),
-        pmass: wp.array(dtype=float),
-        pvol0: wp.array(dtype=float),
-        phase: wp.array(dtype=wp.int32),
-        active: wp.array(dtype=wp.int32),
         geo: GridGeometry,
-        face_u: wp.array3d(dtype=wp.vec2),
-        face_v: wp.array3d(dtype=wp.vec2),
-        face_w: wp.array3d(dtype=wp.vec2),
+        particles: Particles,
+        faces: FacePairs,
         cell_mv: wp.array3d(dtype=wp.vec2),
         cell_count: wp.array3d(dtype=wp.int32),
         nonfinite: wp.array(dtype=wp.int32),
@@ -407,12 +385,17 @@ def _p2g_kernel(dim: int):
         the part that starts at node 0): the step then stops with a message instead of writing outside
         the grid.
         """
+        x = particles.x
+        phase = particles.phase
+        face_u = faces.u
+        face_v = faces.v
+        face_w = faces.w
         origin = geo.origin
         dx = geo.dx
         p = wp.tid()
-        if active[p] != ACTIVE or phase[p] > PHASE_GAS:
+        if particles.active[p] != ACTIVE or phase[p] > PHASE_GAS:
             return
-        vp = v[p]
+        vp = particles.v[p]
         if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
             if x_lo == 0:
                 wp.atomic_add(nonfinite, 0, 1)
@@ -422,9 +405,9 @@ def _p2g_kernel(dim: int):
         cell_x = int(wp.floor((xp[0] - origin[0]) * inv_dx))
         if cell_x + 2 < x_lo or cell_x - 1 >= x_hi:  # every grid's stencil: nodes cell_x - 1 .. cell_x + 2
             return
-        m = pmass[p]
-        vol = pvol0[p]
-        Cp = C[p]
+        m = particles.mass[p]
+        vol = particles.vol0[p]
+        Cp = particles.C[p]
         liquid = phase[p] == PHASE_LIQUID
         s = mac_stencil(xp, origin, inv_dx, wp.static(dim))
         su = component_stencil(s, 0)
@@ -492,14 +475,13 @@ def _gather_func(dim: int):
         return wp.vec4(value, d * gx, d * gy, d * gz)
 
     @wp.func
-    def gather_mac(vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
-                   s: MacStencil, dx: float):
+    def gather_mac(vel: FaceField, s: MacStencil, dx: float):
         """gather_velocity_and_affine with the shared stencils."""
-        gu = gather_separable(vel_u, component_stencil(s, 0), dx)
-        gv = gather_separable(vel_v, component_stencil(s, 1), dx)
+        gu = gather_separable(vel.u, component_stencil(s, 0), dx)
+        gv = gather_separable(vel.v, component_stencil(s, 1), dx)
         gw = wp.vec4(0.0)
         if wp.static(dim == 3):
-            gw = gather_separable(vel_w, component_stencil(s, 2), dx)
+            gw = gather_separable(vel.w, component_stencil(s, 2), dx)
         C = wp.matrix_from_rows(wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]),
                                 wp.vec3(gw[1], gw[2], gw[3]))
         return wp.vec3(gu[0], gv[0], gw[0]), C
@@ -512,29 +494,25 @@ def _g2p_kernel(dim: int):
 
     @wp.kernel(enable_backward=False, name="g2p_advect")
     def g2p_fused(
-        vel_u: wp.array3d(dtype=float),
-        vel_v: wp.array3d(dtype=float),
-        vel_w: wp.array3d(dtype=float),
-        gas_u: wp.array3d(dtype=float),
-        gas_v: wp.array3d(dtype=float),
-        gas_w: wp.array3d(dtype=float),
-        geo: GridGeometry,
-        dt: float,
-        x: wp.array(dtype=wp.vec3),
-        v: wp.array(dtype=wp.vec3),
-        C: wp.array(dtype=wp.mat33),
-        J: wp.array(dtype=float),
-        active: wp.array(dtype=wp.int32),
-        phase: wp.array(dtype=wp.int32),
-        gas_J_from_cells: int,
         first: int,
-        max_speed: wp.array(dtype=float),
+        dt: float,
+        gas_J_from_cells: int,
         slot: int,
+        geo: GridGeometry,
+        vel: FaceField,
+        gas_vel: FaceField,
+        particles: Particles,
+        max_speed: wp.array(dtype=float),
     ):
         """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
         (grid-resolved phases only: the effects move foam and sub-grid bubbles). Particles from
         `first` on (core/threads.py: the parts of one g2p); their fastest speed goes to
-        max_speed[slot]."""
+        max_speed[slot]. The gas gathers gas_vel (the liquid's field when the phases share one)."""
+        x = particles.x
+        v = particles.v
+        J = particles.J
+        active = particles.active
+        phase = particles.phase
         dx = geo.dx
         domain_hi = geo.domain_hi
         p = wp.tid() + first
@@ -552,9 +530,9 @@ def _g2p_kernel(dim: int):
         vp = wp.vec3(0.0)
         Cp = wp.mat33(0.0)
         if phase[p] == PHASE_GAS:  # the gas's own field (the liquid's when phase velocities are shared)
-            vp, Cp = gather_mac(gas_u, gas_v, gas_w, s, dx)
+            vp, Cp = gather_mac(gas_vel, s, dx)
         else:
-            vp, Cp = gather_mac(vel_u, vel_v, vel_w, s, dx)
+            vp, Cp = gather_mac(vel, s, dx)
         if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
             J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
         # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
@@ -567,7 +545,7 @@ def _g2p_kernel(dim: int):
         active[p] = code
         x[p] = xn
         v[p] = vn
-        C[p] = Cp
+        particles.C[p] = Cp
         wp.atomic_max(max_speed, slot, wp.length(vn))
 
     return g2p_fused

@@ -23,6 +23,7 @@ import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
+from ..core import kernel_args
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
@@ -366,9 +367,8 @@ class GasStage(Stage):
         f, p = sim.fields, sim.particles
         for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
             arr.zero_()
-        sim.launch_splat(p2g_gas, [p.x, p.mass, p.vol0, p.J, p.phase, p.active, p.gas_law, p.gas_gamma,
-                                   sim.scene.domain.ambient_pressure, sim.geometry,
-                                   f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count])
+        sim.launch_splat(p2g_gas, [sim.scene.domain.ambient_pressure, sim.geometry, kernel_args.particles(p),
+                                   kernel_args.splat(f), f.gas_count])
         self.cavities.after_p2g(sim)
 
     def on_cells(self, sim, dt: float):
@@ -405,8 +405,8 @@ class GasStage(Stage):
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
         box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
-        sim.launch(gas_volume_rate, box.cells,
-                   [f.types, *(f.gas_vel or f.vel), f.gas_volume, f.target_div, g.dx, g.dim, f.gas_rate, box.lo])
+        sim.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types, kernel_args.face_field(f.gas_vel or f.vel),
+                                                f.gas_volume, f.target_div, f.gas_rate])
         sim.launch_particles(update_gas_J, [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
         self.cavities.update_J(sim, dt)
         ambient = sim.scene.domain.ambient_pressure

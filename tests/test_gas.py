@@ -10,6 +10,7 @@ from rayleigh_plesset import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.core.gas_law import cell_compressibility
 from warp_mpm_bubbles.core.grid import FLUID, INTERFACE_SHARP
+from warp_mpm_bubbles.core.kernel_args import face_field
 from warp_mpm_bubbles.core.transfer_kernels import gas_volume_rate
 from warp_mpm_bubbles.core.simulation import Simulation
 
@@ -413,9 +414,10 @@ def test_a_gas_cells_compressibility_matches_the_volume_change_its_gas_takes():
     zeros_v, zeros_w = wp.zeros((n, 2, 1), dtype=float, device="cpu"), wp.zeros((n, 1, 2), dtype=float, device="cpu")
     vg = (fractions * dx**3).astype(np.float32)
     rate = wp.zeros((n, 1, 1), dtype=float, device="cpu")
+    vel = face_field([wp.array(u, device="cpu"), zeros_v, zeros_w])
     wp.launch(gas_volume_rate, (n, 1, 1), device="cpu",
-              inputs=[types, wp.array(u, device="cpu"), zeros_v, zeros_w, wp.array(vg.reshape(n, 1, 1), device="cpu"),
-                      wp.zeros((n, 1, 1), dtype=float, device="cpu"), dx, 2, rate, wp.vec3i(0, 0, 0)])
+              inputs=[wp.vec3i(0, 0, 0), dx, 2, types, vel, wp.array(vg.reshape(n, 1, 1), device="cpu"),
+                      wp.zeros((n, 1, 1), dtype=float, device="cpu"), rate])
     kappa_cell = wp.zeros(n, dtype=float, device="cpu")
     wp.launch(_cell_kappa, n, device="cpu", inputs=[wp.array((kappa_gas * vg).astype(np.float32), device="cpu"),
                                                     wp.array(vg, device="cpu"), dx**3, kappa_cell])

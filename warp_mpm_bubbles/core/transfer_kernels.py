@@ -200,38 +200,22 @@ def gather_component(vel: wp.array3d(dtype=float), X: wp.vec3, dim: int, dx: flo
 
 
 @wp.func
-def gather_velocity_and_affine(
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    xp: wp.vec3,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-):
+def gather_velocity_and_affine(vel: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
     """APIC gather at xp: the velocity and the affine matrix C (rows: one per face component)."""
     inv_dx = 1.0 / dx
-    gu = gather_component(vel_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
-    gv = gather_component(vel_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
+    gu = gather_component(vel.u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, dx)
+    gv = gather_component(vel.v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, dx)
     gw = wp.vec4(0.0)
     if dim == 3:
-        gw = gather_component(vel_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
+        gw = gather_component(vel.w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, dx)
     C = wp.matrix_from_rows(wp.vec3(gu[1], gu[2], gu[3]), wp.vec3(gv[1], gv[2], gv[3]), wp.vec3(gw[1], gw[2], gw[3]))
     return wp.vec3(gu[0], gv[0], gw[0]), C
 
 
 @wp.func
-def interpolate_velocity(
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    xp: wp.vec3,
-    origin: wp.vec3,
-    dx: float,
-    dim: int,
-):
+def interpolate_velocity(vel: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
     """The grid velocity at xp (PIC: without the APIC gradient), for the Lagrangian effects."""
-    v, C = gather_velocity_and_affine(vel_u, vel_v, vel_w, xp, origin, dx, dim)
+    v, C = gather_velocity_and_affine(vel, xp, origin, dx, dim)
     return v
 
 

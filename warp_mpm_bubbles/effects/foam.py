@@ -27,7 +27,9 @@ import math
 import warp as wp
 
 from ..core.cells import cell_of, is_solid
+from ..core import kernel_args
 from ..core.geometry import GridGeometry
+from ..core.kernel_args import FaceField, Particles
 from ..core.grid import PHASE_FOAM, PHASE_GAS
 from ..core.stage import Stage
 from ..physics.gas import exposed_to_open_air
@@ -69,25 +71,22 @@ def liquid_fraction(
 
 @wp.kernel
 def advance_foam(
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
+    dt: float,
+    rise_speed: float,
+    up: wp.vec3,
+    geo: GridGeometry,
+    vel: FaceField,
     liq_volume: wp.array3d(dtype=float),
     types: wp.array3d(dtype=wp.int32),
-    geo: GridGeometry,
-    dt: float,
-    up: wp.vec3,
-    rise_speed: float,
-    phase: wp.array(dtype=wp.int32),
-    mass: wp.array(dtype=float),
+    particles: Particles,
     life: wp.array(dtype=float),
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
     vented_mass: wp.array(dtype=wp.float64),
 ):
     """Age every foam particle by dt; burst the expired ones (their gas joins the atmosphere's
     ledger); move the others by the regime of the liquid fraction around them."""
+    phase = particles.phase
+    x = particles.x
+    active = particles.active
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
@@ -100,24 +99,24 @@ def advance_foam(
     life[p] = remaining
     if remaining <= 0.0:
         active[p] = 0
-        wp.atomic_add(vented_mass, 0, wp.float64(mass[p]))
+        wp.atomic_add(vented_mass, 0, wp.float64(particles.mass[p]))
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
     phi = liquid_fraction(liq_volume, types, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, inv_dx * inv_dx * inv_dx)
-    vp = v[p]
+    vp = particles.v[p]
     if phi < AIRBORNE_PHI:
         vp = vp + dt * gravity  # spray: nothing to ride on
     else:
         # Relative to the liquid, foam settles where phi = 1/2: submerged it floats up (buoyant),
         # above the surface it sinks back (heavier than air), the faster the farther away.
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
-        vp = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim) + lift * up
+        vp = interpolate_velocity(vel, xp, origin, dx, dim) + lift * up
     moved = xp + dt * vp
     active[p] = open_wall_exit(moved, geo, phase[p])  # LEAVING through an open wall: book_outflow retires it
     xn = clamp_to_domain(moved, domain_hi, dx, dim)
     x[p] = xn
-    v[p] = wall_stopped(moved, xn, vp, dim)  # a wall stops the motion into it, as in g2p
+    particles.v[p] = wall_stopped(moved, xn, vp, dim)  # a wall stops the motion into it, as in g2p
 
 
 @wp.kernel
@@ -181,6 +180,6 @@ class FoamStage(Stage):
     def advance(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         sim.launch(advance_foam, p.count,
-                   [*f.vel, f.liq_volume, f.types, sim.geometry, dt, self._up, self.settings.rise_speed, p.phase, p.mass, p.foam_life, p.x, p.v, p.active,
-                    f.vented_mass])
+                   [dt, self.settings.rise_speed, self._up, sim.geometry, kernel_args.face_field(f.vel), f.liq_volume,
+                    f.types, kernel_args.particles(p), p.foam_life, f.vented_mass])
         sim.book_outflow()  # foam blown through an open wall

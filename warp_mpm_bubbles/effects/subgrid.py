@@ -48,6 +48,8 @@ import warp as wp
 from ..core.cells import cell_of
 from ..core.gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from ..core.geometry import GridGeometry
+from ..core import kernel_args
+from ..core.kernel_args import CellPhases, FaceField, Particles
 from ..core.grid import ACTIVE, EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
@@ -77,20 +79,12 @@ def volume_ratio(law: int, gamma: float, p_gauge: float, p_atm: float):
 
 
 @wp.kernel
-def deposit_drag_reaction(
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    impulse: wp.array(dtype=wp.vec3),
-    geo: GridGeometry,
-    mass_u: wp.array3d(dtype=float),
-    mass_v: wp.array3d(dtype=float),
-    mass_w: wp.array3d(dtype=float),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-):
+def deposit_drag_reaction(geo: GridGeometry, particles: Particles, impulse: wp.array(dtype=wp.vec3),
+                          face_mass: FaceField, vel: FaceField):
     """The liquid gets the momentum that the drag took from each bubble in its last update."""
+    x = particles.x
+    phase = particles.phase
+    active = particles.active
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
@@ -103,10 +97,10 @@ def deposit_drag_reaction(
         return
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     inv_dx = 1.0 / dx
-    add_face_impulse(vel_u, mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, J[0])
-    add_face_impulse(vel_v, mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, J[1])
+    add_face_impulse(vel.u, face_mass.u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, J[0])
+    add_face_impulse(vel.v, face_mass.v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, J[1])
     if dim == 3:
-        add_face_impulse(vel_w, mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, J[2])
+        add_face_impulse(vel.w, face_mass.w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, J[2])
 
 
 @wp.func
@@ -126,39 +120,40 @@ def joins_resolved_gas(types: wp.array3d(dtype=wp.int32), phase_cells: wp.array3
     return height_along(c, up_axis, up_sign, types.shape[up_axis]) > ceiling[col[0], col[1], col[2]]
 
 
+@wp.struct
+class Surroundings:
+    """What a sub-grid bubble rises through: the liquid's density and viscosity, the ambient pressure."""
+
+    rho_l: float  # kg/m^3
+    mu: float  # Pa s
+    p_atm: float  # Pa
+
+
 @wp.kernel
 def advance_subgrid(
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    mass_u: wp.array3d(dtype=float),
-    mass_v: wp.array3d(dtype=float),
-    mass_w: wp.array3d(dtype=float),
-    types: wp.array3d(dtype=wp.int32),
-    phase_cells: wp.array3d(dtype=wp.int32),
+    dt: float,
+    geo: GridGeometry,
+    around: Surroundings,
+    vel: FaceField,
+    face_mass: FaceField,
+    cells: CellPhases,
     ceiling: wp.array3d(dtype=wp.int32),
     pressure: wp.array3d(dtype=float),
-    geo: GridGeometry,
-    dt: float,
-    rho_l: float,
-    mu: float,
-    p_atm: float,
-    mass: wp.array(dtype=float),
-    vol0: wp.array(dtype=float),
-    gas_law: wp.array(dtype=wp.int32),
-    gas_gamma: wp.array(dtype=float),
-    phase: wp.array(dtype=wp.int32),
-    J: wp.array(dtype=float),
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
+    particles: Particles,
     impulse: wp.array(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
     max_speed: wp.array(dtype=float),
 ):
     """Buoyancy and implicit drag for every sub-grid bubble in the liquid; the others join the
     resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those). The
     drag's dt k is capped at the fluid mass the bubble's stencil holds (face_fluid_mass; the module
     docstring says why: the fluid takes the reaction explicitly)."""
+    rho_l = around.rho_l
+    phase = particles.phase
+    J = particles.J
+    x = particles.x
+    v = particles.v
+    active = particles.active
+    types = cells.types
     up_axis = geo.up_axis
     up_sign = geo.up_sign
     origin = geo.origin
@@ -172,29 +167,29 @@ def advance_subgrid(
     xp = clamp_to_domain(x[p], domain_hi, dx, dim)
     c = cell_of(xp, origin, dx)
     t = types[c[0], c[1], c[2]]
-    if joins_resolved_gas(types, phase_cells, ceiling, c, up_axis, up_sign):
+    if joins_resolved_gas(types, cells.phase, ceiling, c, up_axis, up_sign):
         phase[p] = PHASE_GAS
         impulse[p] = wp.vec3(0.0)
         return
     p_gauge = float(0.0)
     if t == FLUID:
         p_gauge = pressure[c[0], c[1], c[2]]
-    Jp = volume_ratio(gas_law[p], gas_gamma[p], p_gauge, p_atm)
+    Jp = volume_ratio(particles.gas_law[p], particles.gas_gamma[p], p_gauge, around.p_atm)
     J[p] = Jp
-    vol = vol0[p] * Jp
+    vol = particles.vol0[p] * Jp
     r = wp.pow(0.75 * vol / PI, 1.0 / 3.0)
-    rho_g = mass[p] / vol
+    rho_g = particles.mass[p] / vol
     m_eff = (rho_g + ADDED_MASS * rho_l) * vol
-    u_l = interpolate_velocity(vel_u, vel_v, vel_w, xp, origin, dx, dim)
-    fluid_mass = face_fluid_mass(mass_u, mass_v, mass_w, xp, origin, dx, dim)
+    u_l = interpolate_velocity(vel, xp, origin, dx, dim)
+    fluid_mass = face_fluid_mass(face_mass, xp, origin, dx, dim)
     b = m_eff * (v[p] - u_l) - dt * (rho_l - rho_g) * vol * gravity
     b_len = wp.length(b)
     w = wp.vec3(0.0)
     drag = float(0.0)  # dt k, capped
     if b_len > 0.0:
-        s = implicit_relative_speed(b_len, m_eff, dt, r, rho_l, mu, fluid_mass)
+        s = implicit_relative_speed(b_len, m_eff, dt, r, rho_l, around.mu, fluid_mass)
         w = b * (s / b_len)
-        drag = drag_impulse_per_speed(s, dt, r, rho_l, mu, fluid_mass)
+        drag = drag_impulse_per_speed(s, dt, r, rho_l, around.mu, fluid_mass)
     vp = u_l + w
     impulse[p] = drag * w  # what the drag took from the bubble goes to the fluid next step
     moved = xp + dt * vp
@@ -238,26 +233,26 @@ def candidate_count(flag: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int3
 
 @wp.kernel
 def pack_candidates(
-    flag: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32),
-    origin: wp.vec3d, dx: wp.float64, cells: wp.vec3i, dim: int,
-    phase: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
-    mass: wp.array(dtype=float), vol0: wp.array(dtype=float), J: wp.array(dtype=float),
+    origin: wp.vec3d, dx: wp.float64, cells: wp.vec3i, dim: int, flag: wp.array(dtype=wp.int32),
+    slot: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), particles: Particles,
     material: wp.array(dtype=wp.int32), rows: wp.array2d(dtype=wp.float64),
 ):
     """The candidates' rows, in particle order (the scan's): all the host reads of them."""
+    x = particles.x
+    v = particles.v
     p = wp.tid()
     if flag[p] == 0:
         return
     r = slot[p]
     c = host_cell(x[p], origin, dx, cells, dim)
     rows[r, 0] = wp.float64(p)
-    rows[r, 1] = wp.float64(phase[p])
+    rows[r, 1] = wp.float64(particles.phase[p])
     for a in range(3):
         rows[r, 2 + a] = wp.float64(x[p][a])
         rows[r, 5 + a] = wp.float64(v[p][a])
-    rows[r, 8] = wp.float64(mass[p])
-    rows[r, 9] = wp.float64(vol0[p])
-    rows[r, 10] = wp.float64(J[p])
+    rows[r, 8] = wp.float64(particles.mass[p])
+    rows[r, 9] = wp.float64(particles.vol0[p])
+    rows[r, 10] = wp.float64(particles.J[p])
     rows[r, 11] = wp.float64(material[p])
     rows[r, 12] = wp.float64(wp.where(types[c[0], c[1], c[2]] == FLUID, 1, 0))
 
@@ -385,14 +380,16 @@ class SubgridBubbleStage(Stage):
 
     def on_momentum(self, sim, dt: float):
         f, p = sim.fields, sim.particles
-        sim.launch(deposit_drag_reaction, p.count,
-                   [p.x, p.phase, p.active, p.subgrid_impulse, sim.geometry, *f.face_mass, *f.vel])
+        sim.launch(deposit_drag_reaction, p.count, [sim.geometry, kernel_args.particles(p), p.subgrid_impulse,
+                                                    kernel_args.face_field(f.face_mass), kernel_args.face_field(f.vel)])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
+        around = Surroundings()
+        around.rho_l, around.mu, around.p_atm = self.rho_l, self.mu, sim.scene.domain.ambient_pressure
         sim.launch(advance_subgrid, p.count,
-                   [*f.vel, *f.face_mass, f.types, f.phase_cells, f.ceiling, f.pressure, sim.geometry, dt, self.rho_l, self.mu, sim.scene.domain.ambient_pressure,
-                    p.mass, p.vol0, p.gas_law, p.gas_gamma, p.phase, p.J, p.x, p.v, p.subgrid_impulse, p.active,
+                   [dt, sim.geometry, around, kernel_args.face_field(f.vel), kernel_args.face_field(f.face_mass),
+                    kernel_args.cell_phases(f), f.ceiling, f.pressure, kernel_args.particles(p), p.subgrid_impulse,
                     f.max_speed])
         sim.book_outflow()  # bubbles carried through an open wall
         if (sim.stats.steps + 1) % self.settings.convert_every == 0:
@@ -418,8 +415,8 @@ class SubgridBubbleStage(Stage):
         g = sim.grid
         rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=sim.device)
         sim.launch(pack_candidates, self._n,
-                   [self._flag, self._slot, sim.fields.types, wp.vec3d(*g.origin), wp.float64(g.dx),
-                    wp.vec3i(*g.cells), g.dim, p.phase, p.x, p.v, p.mass, p.vol0, p.J, p.material, rows])
+                   [wp.vec3d(*g.origin), wp.float64(g.dx), wp.vec3i(*g.cells), g.dim, self._flag, self._slot,
+                    sim.fields.types, kernel_args.particles(p), p.material, rows])
         rows = sim.read_host(rows)
         index, phase = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int32)
         snap = {"x": rows[:, 2:5], "v": rows[:, 5:8], "mass": rows[:, 8], "vol0": rows[:, 9], "J": rows[:, 10],

@@ -19,6 +19,7 @@ import math
 
 import warp as wp
 
+from ..core.kernel_args import FaceField
 from ..core.transfer_kernels import U_OFFSET, V_OFFSET, W_OFFSET, grid_coord, make_stencil
 
 wp.set_module_options({"enable_backward": False})
@@ -77,15 +78,14 @@ def stencil_mass(mass: wp.array3d(dtype=float), X: wp.vec3, dim: int):
 
 
 @wp.func
-def face_fluid_mass(mass_u: wp.array3d(dtype=float), mass_v: wp.array3d(dtype=float),
-                    mass_w: wp.array3d(dtype=float), xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
+def face_fluid_mass(face_mass: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
     """The fluid mass a bubble at xp drags (this step's face masses): the smallest stencil_mass over
     the face grids, the most the drag's dt k may be (advance_subgrid)."""
     inv_dx = 1.0 / dx
-    m = wp.min(stencil_mass(mass_u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
-               stencil_mass(mass_v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim))
+    m = wp.min(stencil_mass(face_mass.u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
+               stencil_mass(face_mass.v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim))
     if dim == 3:
-        m = wp.min(m, stencil_mass(mass_w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim))
+        m = wp.min(m, stencil_mass(face_mass.w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim))
     return m
 
 

@@ -120,7 +120,8 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     # (the resolved bubble, in the cell the interface crosses), and any liquid particle stay.
     from warp_mpm_bubbles.core.geometry import GridGeometry
     from warp_mpm_bubbles.core.grid import FLUID, PHASE_GAS, PHASE_LIQUID
-    from warp_mpm_bubbles.physics.tension import retract_gas_films
+    from warp_mpm_bubbles.core.kernel_args import CellPhases, Particles
+    from warp_mpm_bubbles.physics.tension import Films, retract_gas_films
 
     dx, n = 0.001, 8
     types = np.full((n, n, 1), FLUID, dtype=np.int32)
@@ -136,13 +137,20 @@ def test_gas_films_retract_into_the_bubble_beside_them():
     speed = math.sqrt(2.0 * SIGMA / (1000.0 * dx))  # 0.38 m/s: a one-cell film's Taylor-Culick speed
     geo = GridGeometry()
     geo.origin, geo.dx, geo.dim, geo.domain_hi = wp.vec3(0.0), dx, 2, wp.vec3(n * dx, n * dx, dx)
+    films = Films()
+    films.cells = CellPhases()
+    films.cells.types, films.cells.phase = wp.array(types, device="cpu"), wp.array(phase, device="cpu")
+    films.gas_volume, films.level = wp.array(gas_volume, device="cpu"), wp.array(level, device="cpu")
+    films.capillary_speed = speed
     for dt, expected in ((1.0e-4, speed * 1.0e-4), (1.0e-2, 0.25 * dx)):
         xs = wp.array(x, dtype=wp.vec3, device="cpu")
+        particles = Particles()
+        particles.x, particles.phase = xs, wp.array(particle_phase, device="cpu")
+        particles.active = wp.ones(len(x), dtype=wp.int32, device="cpu")
         wp.launch(retract_gas_films, len(x), device="cpu", inputs=[
-            0, wp.array(types, device="cpu"), wp.array(phase, device="cpu"), wp.array(gas_volume, device="cpu"),
-            wp.array(level, device="cpu"), speed, geo, dt, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
-            wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), xs,
-            wp.array(particle_phase, device="cpu"), wp.ones(len(x), dtype=wp.int32, device="cpu")])
+            0, dt, geo, films, wp.full((n, n, 1), 9, dtype=wp.int32, device="cpu"),  # every cell keeps a particle
+            wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"), wp.zeros((n, n, 1), dtype=wp.int32, device="cpu"),
+            particles])
         moved = xs.numpy() - x
         # the pull points at the gas-weighted centroid of the gas cells (3, 3..5): straight to -x
         assert moved[0, 0] == pytest.approx(-expected, rel=1e-4) and abs(moved[0, 1]) < 1e-9

@@ -162,7 +162,7 @@ def plane_sums(planes, plane0: int) -> PlaneSums:
 # The particles' (core/state.py).
 @wp.struct
 class Particles:
-    """The arrays every particle has (state.PARTICLE_FIELDS) that the transfers read and write."""
+    """The arrays every particle has (state.PARTICLE_FIELDS)."""
 
     x: wp.array(dtype=wp.vec3)  # position, m
     v: wp.array(dtype=wp.vec3)  # velocity, m/s
@@ -174,6 +174,8 @@ class Particles:
     active: wp.array(dtype=wp.int32)  # RETIRED, ACTIVE, LEAVING or AIRBORNE (grid.py)
     gas_law: wp.array(dtype=wp.int32)  # the gas's law (core/gas_law.py)
     gas_gamma: wp.array(dtype=float)  # the gas's heat-capacity ratio
+    material: wp.array(dtype=wp.int32)  # index into the scene's materials
+    ids: wp.array(dtype=wp.int64)  # each particle's number, in the order they were added
 
 
 @wp.struct
@@ -190,6 +192,7 @@ def particles(state) -> Particles:
     p = Particles()
     p.x, p.v, p.C, p.mass, p.vol0, p.J = state.x, state.v, state.C, state.mass, state.vol0, state.J
     p.phase, p.active, p.gas_law, p.gas_gamma = state.phase, state.active, state.gas_law, state.gas_gamma
+    p.material, p.ids = state.material, state.ids
     return p
 
 

@@ -29,7 +29,9 @@ import numpy as np
 import warp as wp
 
 from ..core.cells import block_offset, block_size, cell_type_at
+from ..core import kernel_args
 from ..core.geometry import GridGeometry
+from ..core.kernel_args import FaceField, Particles
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.stage import Stage
 from ..core.simulation import GAS_LAW_CODES
@@ -39,30 +41,25 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def cell_velocity(
-    vel_u: wp.array3d(dtype=float), vel_v: wp.array3d(dtype=float), vel_w: wp.array3d(dtype=float),
-    c: wp.vec3i, dim: int,
-):
-    u = wp.vec3(0.5 * (vel_u[c[0], c[1], c[2]] + vel_u[c[0] + 1, c[1], c[2]]),
-                0.5 * (vel_v[c[0], c[1], c[2]] + vel_v[c[0], c[1] + 1, c[2]]), 0.0)
+def cell_velocity(vel: FaceField, c: wp.vec3i, dim: int):
+    u = wp.vec3(0.5 * (vel.u[c[0], c[1], c[2]] + vel.u[c[0] + 1, c[1], c[2]]),
+                0.5 * (vel.v[c[0], c[1], c[2]] + vel.v[c[0], c[1] + 1, c[2]]), 0.0)
     if dim == 3:
-        u[2] = 0.5 * (vel_w[c[0], c[1], c[2]] + vel_w[c[0], c[1], c[2] + 1])
+        u[2] = 0.5 * (vel.w[c[0], c[1], c[2]] + vel.w[c[0], c[1], c[2] + 1])
     return u
 
 
 @wp.kernel
 def trapped_air(
-    types: wp.array3d(dtype=wp.int32),
-    phase_cells: wp.array3d(dtype=wp.int32),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
     dim: int,
     dt: float,
     min_speed: float,
     max_speed: float,
     rate: float,
     seed: int,
+    types: wp.array3d(dtype=wp.int32),
+    phase_cells: wp.array3d(dtype=wp.int32),
+    vel: FaceField,
     seeds: wp.array(dtype=wp.int32),
 ):
     """Ihmsen et al.'s trapped-air potential per liquid cell near air: how many bubbles it seeds."""
@@ -72,7 +69,7 @@ def trapped_air(
     c = wp.vec3i(i, j, k)
     if types[i, j, k] != FLUID or phase_cells[i, j, k] != PHASE_LIQUID:
         return
-    u_c = cell_velocity(vel_u, vel_v, vel_w, c, dim)
+    u_c = cell_velocity(vel, c, dim)
     near_air = int(0)
     potential = float(0.0)
     weights = float(0.0)
@@ -88,7 +85,7 @@ def trapped_air(
         d = wp.vec3(float(off[0]), float(off[1]), float(off[2]))
         dist = wp.length(d)
         weight = 1.0 - 0.5 * dist  # W = 1 - |x_cn| / 2dx
-        u_rel = u_c - cell_velocity(vel_u, vel_v, vel_w, c + off, dim)
+        u_rel = u_c - cell_velocity(vel, c + off, dim)
         speed = wp.length(u_rel)
         if speed > 0.0:
             # x_cn = x_c - x_n = -d: approaching streams give 1 - cos > 1, up to 2 head-on
@@ -121,30 +118,18 @@ class Bubble:
 
 @wp.kernel
 def place_seeds(
-    seeds: wp.array(dtype=wp.int32),
-    first: wp.array(dtype=wp.int32),
-    vel_u: wp.array3d(dtype=float),
-    vel_v: wp.array3d(dtype=float),
-    vel_w: wp.array3d(dtype=float),
-    types: wp.array3d(dtype=wp.int32),
-    geo: GridGeometry,
     seed: int,
     lo: int,
     hi: int,
     base: int,
     next_id: wp.int64,
+    geo: GridGeometry,
     bubble: Bubble,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    mass: wp.array(dtype=float),
-    vol0: wp.array(dtype=float),
-    J: wp.array(dtype=float),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    material: wp.array(dtype=wp.int32),
-    gas_law: wp.array(dtype=wp.int32),
-    gas_gamma: wp.array(dtype=float),
-    ids: wp.array(dtype=wp.int64),
+    seeds: wp.array(dtype=wp.int32),
+    first: wp.array(dtype=wp.int32),
+    vel: FaceField,
+    types: wp.array3d(dtype=wp.int32),
+    particles: Particles,
 ):
     """Each seeding cell writes its bubbles at base + its run (first: the exclusive scan of seeds),
     those of its slots in [lo, hi); the draws repeat trapped_air's and go on from there."""
@@ -155,7 +140,7 @@ def place_seeds(
         return
     state = wp.rand_init(seed, cell)
     wp.randf(state)  # trapped_air's draw of the fraction
-    u_c = cell_velocity(vel_u, vel_v, vel_w, wp.vec3i(i, j, k), geo.dim)
+    u_c = cell_velocity(vel, wp.vec3i(i, j, k), geo.dim)
     for q in range(n):
         jitter = wp.vec3(wp.randf(state), wp.randf(state), 0.5)
         if geo.dim == 3:
@@ -163,17 +148,17 @@ def place_seeds(
         slot = first[cell] + q
         if slot >= lo and slot < hi:
             p = base + slot
-            x[p] = geo.origin + (wp.vec3(float(i), float(j), float(k)) + jitter) * geo.dx
-            v[p] = u_c
-            mass[p] = bubble.mass
-            vol0[p] = bubble.vol0
-            J[p] = 1.0
-            phase[p] = PHASE_SUBGRID
-            active[p] = 1
-            material[p] = bubble.material
-            gas_law[p] = bubble.gas_law
-            gas_gamma[p] = bubble.gas_gamma
-            ids[p] = next_id + wp.int64(slot)
+            particles.x[p] = geo.origin + (wp.vec3(float(i), float(j), float(k)) + jitter) * geo.dx
+            particles.v[p] = u_c
+            particles.mass[p] = bubble.mass
+            particles.vol0[p] = bubble.vol0
+            particles.J[p] = 1.0
+            particles.phase[p] = PHASE_SUBGRID
+            particles.active[p] = 1
+            particles.material[p] = bubble.material
+            particles.gas_law[p] = bubble.gas_law
+            particles.gas_gamma[p] = bubble.gas_gamma
+            particles.ids[p] = next_id + wp.int64(slot)
 
 
 @wp.kernel
@@ -223,8 +208,8 @@ class EntrainmentStage(Stage):
             return
         # One seed per step (scene seed, step index); the kernel hashes the cell index in.
         seed = (int(sim.scene.solver.seed) * 1_000_003 + (sim.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
-        sim.launch(trapped_air, g.cells, [f.types, f.phase_cells, *f.vel, g.dim, dt, s.min_speed, s.max_speed, s.rate,
-                                          seed, self._seeds])
+        sim.launch(trapped_air, g.cells, [g.dim, dt, s.min_speed, s.max_speed, s.rate, seed, f.types, f.phase_cells,
+                                          kernel_args.face_field(f.vel), self._seeds])
         wp.utils.array_scan(self._seeds, self._first, inclusive=False)
         sim.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
         base, capacity = p.count, int(sim.host_state["entrainment_capacity"][0])
@@ -236,9 +221,9 @@ class EntrainmentStage(Stage):
     def _place(self, sim, seed, lo, hi, base):
         f, p = sim.fields, sim.particles
         sim.launch(place_seeds, sim.grid.cells,
-                   [self._seeds, self._first, *f.vel, f.types, sim.geometry, seed, lo, hi, base,
-                    wp.int64(int(sim.host_state["next_id"][0])), self._bubble_values(sim),
-                    p.x, p.v, p.mass, p.vol0, p.J, p.phase, p.active, p.material, p.gas_law, p.gas_gamma, p.ids])
+                   [seed, lo, hi, base, wp.int64(int(sim.host_state["next_id"][0])), sim.geometry,
+                    self._bubble_values(sim), self._seeds, self._first, kernel_args.face_field(f.vel), f.types,
+                    kernel_args.particles(p)])
 
     @property
     def pending_total(self):

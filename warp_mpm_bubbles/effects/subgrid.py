@@ -235,7 +235,7 @@ def candidate_count(flag: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int3
 def pack_candidates(
     origin: wp.vec3d, dx: wp.float64, cells: wp.vec3i, dim: int, flag: wp.array(dtype=wp.int32),
     slot: wp.array(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), particles: Particles,
-    material: wp.array(dtype=wp.int32), rows: wp.array2d(dtype=wp.float64),
+    rows: wp.array2d(dtype=wp.float64),
 ):
     """The candidates' rows, in particle order (the scan's): all the host reads of them."""
     x = particles.x
@@ -253,7 +253,7 @@ def pack_candidates(
     rows[r, 8] = wp.float64(particles.mass[p])
     rows[r, 9] = wp.float64(particles.vol0[p])
     rows[r, 10] = wp.float64(particles.J[p])
-    rows[r, 11] = wp.float64(material[p])
+    rows[r, 11] = wp.float64(particles.material[p])
     rows[r, 12] = wp.float64(wp.where(types[c[0], c[1], c[2]] == FLUID, 1, 0))
 
 
@@ -416,7 +416,7 @@ class SubgridBubbleStage(Stage):
         rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=sim.device)
         sim.launch(pack_candidates, self._n,
                    [wp.vec3d(*g.origin), wp.float64(g.dx), wp.vec3i(*g.cells), g.dim, self._flag, self._slot,
-                    sim.fields.types, kernel_args.particles(p), p.material, rows])
+                    sim.fields.types, kernel_args.particles(p), rows])
         rows = sim.read_host(rows)
         index, phase = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int32)
         snap = {"x": rows[:, 2:5], "v": rows[:, 5:8], "mass": rows[:, 8], "vol0": rows[:, 9], "J": rows[:, 10],

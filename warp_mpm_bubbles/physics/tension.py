@@ -19,7 +19,9 @@ from ..core.stage import Stage
 from ..core.cells import (
     block_offset, block_size, cell_centre, cell_of, inside, is_liquid_cell, is_phase_cell, is_solid, unit,
 )
-from ..core.lines import Lines, line_end, line_first, make_lines, on_line
+from ..core import kernel_args
+from ..core.kernel_args import CellPhases, Particles
+from ..core.lines import Lines, line_end, line_first, line_kernel, make_lines, on_line
 from ..core.transfer_kernels import clamp_to_domain
 from .curvature import CENTRING_SHIFT, CURVATURE_AVERAGING, average_curvature, column_heights, height_fraction, surface_curvature
 
@@ -27,10 +29,9 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def liquid_level_set(box: Lines, liq_volume: wp.array3d(dtype=float), inv_cell_vol: float, level: wp.array3d(dtype=float)):
+def liquid_level_set(box: Lines, inv_cell_vol: float, liq_volume: wp.array3d(dtype=float), level: wp.array3d(dtype=float)):
     """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface.
-    (box: the cells of the launch, a line a thread, core/lines.py; as below: each kernel is its
-    loop over a line and an `_at` function for one cell.)"""
+    (box: the cells of the launch, a line a thread, core/lines.py.)"""
     ti, tj, tk = wp.tid()
     first = line_first(box, ti, tj, tk)
     for s in range(first[box.axis], line_end(box, first)):
@@ -51,7 +52,7 @@ def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.in
 
 
 @wp.kernel
-def smooth_level_set(box: Lines, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
+def smooth_level_set(box: Lines, dim: int, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
                      out: wp.array3d(dtype=float)):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
@@ -93,11 +94,10 @@ def smooth_level_set_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dty
     out[i, j, k] = total / weight
 
 
-@wp.kernel
-def apply_surface_tension(box: Lines, types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
-                          level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
-                          inv_rho: wp.array3d(dtype=float), sigma: float, axis: int, dx: float, dt: float,
-                          vel: wp.array3d(dtype=float)):
+@wp.func
+def apply_surface_tension_at(sigma: float, axis: int, dx: float, dt: float, cells: CellPhases,
+                             level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
+                             inv_rho: wp.array3d(dtype=float), vel: wp.array3d(dtype=float), i: int, j: int, k: int):
     """The pressure jump [p] = sigma kappa across the liquid's surface (Kang, Fedkiw & Liu 2000).
 
     On a face between a liquid cell L and a gas or empty cell N, the projection must see
@@ -105,25 +105,13 @@ def apply_surface_tension(box: Lines, types: wp.array3d(dtype=wp.int32), phase: 
     the same as putting the jump into the right-hand side and into the pressure gradient, so the
     pressure operator is untouched. kappa is interpolated to where psi crosses zero.
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        apply_surface_tension_at(types, phase, level, curvature, inv_rho, sigma, axis, dx, dt, vel,
-                                 c[0], c[1], c[2])
-
-
-@wp.func
-def apply_surface_tension_at(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
-                             level: wp.array3d(dtype=float), curvature: wp.array3d(dtype=float),
-                             inv_rho: wp.array3d(dtype=float), sigma: float, axis: int, dx: float, dt: float,
-                             vel: wp.array3d(dtype=float), i: int, j: int, k: int):
     if inv_rho[i, j, k] == 0.0:
         return
+    types = cells.types
     hi = wp.vec3i(i, j, k)
     below = hi - unit(axis)
-    liquid_lo = is_liquid_cell(types, phase, below)
-    liquid_hi = is_liquid_cell(types, phase, hi)
+    liquid_lo = is_liquid_cell(types, cells.phase, below)
+    liquid_hi = is_liquid_cell(types, cells.phase, hi)
     if liquid_lo == liquid_hi:
         return
     cl = below
@@ -140,6 +128,9 @@ def apply_surface_tension_at(types: wp.array3d(dtype=wp.int32), phase: wp.array3
         theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)
     kappa = (1.0 - theta) * curvature[cl[0], cl[1], cl[2]] + theta * curvature[cn[0], cn[1], cn[2]]
     vel[i, j, k] = vel[i, j, k] + dt * inv_rho[i, j, k] * orient * sigma * kappa / dx
+
+
+apply_surface_tension = line_kernel(apply_surface_tension_at)
 
 
 @wp.func
@@ -165,17 +156,19 @@ def level_at_point(level: wp.array3d(dtype=float), x: wp.vec3, origin: wp.vec3, 
     return total
 
 
+@wp.struct
+class Films:
+    """Where film gas retracts to (film_target): the cells' types and phases, the gas volume per cell,
+    the smoothed liquid level set, and the film's capillary speed, m/s."""
+
+    cells: CellPhases
+    gas_volume: wp.array3d(dtype=float)
+    level: wp.array3d(dtype=float)
+    capillary_speed: float
+
+
 @wp.func
-def film_target(
-    types: wp.array3d(dtype=wp.int32),
-    phase_cells: wp.array3d(dtype=wp.int32),
-    gas_volume: wp.array3d(dtype=float),
-    level: wp.array3d(dtype=float),
-    capillary_speed: float,
-    geo: GridGeometry,
-    dt: float,
-    xp: wp.vec3,
-):
+def film_target(dt: float, geo: GridGeometry, films: Films, xp: wp.vec3):
     """Where a gas particle at xp retracts to this step (xp itself unless it is in a film): a gas
     particle in a liquid cell with gas cells in its 3^d neighbourhood (a bubble's skirt or rim thinner
     than a cell) moves towards them (their gas-volume-weighted centre) at `capillary_speed`, the
@@ -184,13 +177,15 @@ def film_target(
     smoothed liquid level set the curvature reads is positive, is a film: gas on the bubble's side in
     a cell the interface crosses is the resolved bubble (retracted, it piled into the bubble and left
     the interface's cells under-filled, 0.92, with holes: issue #12)."""
+    types = films.cells.types
+    phase_cells = films.cells.phase
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim
     c = cell_of(xp, origin, dx)
     if not is_liquid_cell(types, phase_cells, c):
         return xp
-    if level_at_point(level, xp, origin, dx, dim) <= 0.0:
+    if level_at_point(films.level, xp, origin, dx, dim) <= 0.0:
         return xp
     pull = wp.vec3(0.0)
     for q in range(block_size(dim)):
@@ -199,11 +194,11 @@ def film_target(
             d = cell_centre(n, origin, dx) - xp
             if dim == 2:
                 d[2] = 0.0  # the slab's centre plane, not the particle's place in its thickness
-            pull += gas_volume[n[0], n[1], n[2]] * d
+            pull += films.gas_volume[n[0], n[1], n[2]] * d
     length = wp.length(pull)
     if length == 0.0:
         return xp
-    step = wp.min(capillary_speed * dt, 0.25 * dx)
+    step = wp.min(films.capillary_speed * dt, 0.25 * dx)
     return clamp_to_domain(xp + (step / length) * pull, geo.domain_hi, dx, dim)
 
 
@@ -215,9 +210,11 @@ def other_cell(x: wp.vec3, c: wp.vec3i, geo: GridGeometry):
 
 
 @wp.kernel
-def count_grid_particles(x: wp.array(dtype=wp.vec3), phase: wp.array(dtype=wp.int32),
-                         active: wp.array(dtype=wp.int32), geo: GridGeometry, count: wp.array3d(dtype=wp.int32)):
+def count_grid_particles(geo: GridGeometry, particles: Particles, count: wp.array3d(dtype=wp.int32)):
     """Liquid and gas particles per cell where they are now (after g2p moved them)."""
+    x = particles.x
+    phase = particles.phase
+    active = particles.active
     p = wp.tid()
     if active[p] != ACTIVE or phase[p] > PHASE_GAS or not wp.isfinite(x[p]):
         return
@@ -226,48 +223,25 @@ def count_grid_particles(x: wp.array(dtype=wp.vec3), phase: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def film_departures(
-    types: wp.array3d(dtype=wp.int32),
-    phase_cells: wp.array3d(dtype=wp.int32),
-    gas_volume: wp.array3d(dtype=float),
-    level: wp.array3d(dtype=float),
-    capillary_speed: float,
-    geo: GridGeometry,
-    dt: float,
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    leaving: wp.array3d(dtype=wp.int32),
-    first: wp.array3d(dtype=wp.int32),
-):
+def film_departures(dt: float, geo: GridGeometry, films: Films, particles: Particles,
+                    leaving: wp.array3d(dtype=wp.int32), first: wp.array3d(dtype=wp.int32)):
     """Per cell, how many film particles would retract out of it, and the lowest index among them."""
+    x = particles.x
+    phase = particles.phase
+    active = particles.active
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
     c = cell_of(xp, geo.origin, geo.dx)
-    if other_cell(film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp), c, geo):
+    if other_cell(film_target(dt, geo, films, xp), c, geo):
         wp.atomic_add(leaving, c[0], c[1], c[2], 1)
         wp.atomic_min(first, c[0], c[1], c[2], p)
 
 
 @wp.kernel
-def retract_gas_films(
-    start: int,
-    types: wp.array3d(dtype=wp.int32),
-    phase_cells: wp.array3d(dtype=wp.int32),
-    gas_volume: wp.array3d(dtype=float),
-    level: wp.array3d(dtype=float),
-    capillary_speed: float,
-    geo: GridGeometry,
-    dt: float,
-    count: wp.array3d(dtype=wp.int32),
-    leaving: wp.array3d(dtype=wp.int32),
-    first: wp.array3d(dtype=wp.int32),
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-):
+def retract_gas_films(start: int, dt: float, geo: GridGeometry, films: Films, count: wp.array3d(dtype=wp.int32),
+                      leaving: wp.array3d(dtype=wp.int32), first: wp.array3d(dtype=wp.int32), particles: Particles):
     """Surface tension below the grid: film gas retracts into its bubble (film_target).
 
     The Laplace jump acts only on faces between liquid and gas cells, so a film under a cell's size
@@ -278,13 +252,16 @@ def retract_gas_films(
     particle leaving a cell alone left a particle-free hole that read as free surface). Particles
     start + tid (Simulation.launch_particles: each writes only its own position).
     """
+    x = particles.x
+    phase = particles.phase
+    active = particles.active
     p = wp.tid() + start
     if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
     dx = geo.dx
     c = cell_of(xp, geo.origin, dx)
-    target = film_target(types, phase_cells, gas_volume, level, capillary_speed, geo, dt, xp)
+    target = film_target(dt, geo, films, xp)
     if other_cell(target, c, geo) and leaving[c[0], c[1], c[2]] >= count[c[0], c[1], c[2]]:
         if first[c[0], c[1], c[2]] == p:  # the cell's last particle: stays, at the side facing its bubble
             lo = cell_centre(c, geo.origin, dx) - wp.vec3(0.49 * dx)
@@ -344,9 +321,9 @@ class TensionStage(Stage):
         g, f, r = sim.grid, sim.fields, sim.region
         level, smoothed = self.level, self.level_tmp
         cells = r.cell_lines
-        sim.launch_lines(liquid_level_set, cells, [f.liq_volume, 1.0 / g.dx**3, level])
+        sim.launch_lines(liquid_level_set, cells, [1.0 / g.dx**3, f.liq_volume, level])
         for _ in range(LEVEL_SET_SMOOTHING):
-            sim.launch_lines(smooth_level_set, cells, [f.types, level, g.dim, smoothed])
+            sim.launch_lines(smooth_level_set, cells, [g.dim, f.types, level, smoothed])
             level, smoothed = smoothed, level
         gas_volume = f.gas_volume if sim.has_gas else f.liq_volume  # (not read without gas)
         sim.launch_lines(height_fraction, cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
@@ -367,16 +344,20 @@ class TensionStage(Stage):
         self.curvature = kappa
         self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
-            sim.launch_lines(apply_surface_tension, r.face_lines[a], [f.types, f.phase_cells, level, kappa,
-                                                                      f.inv_rho[a], self.sigma, a, g.dx, dt, f.vel[a]])
+            sim.launch_lines(apply_surface_tension, r.face_lines[a], [self.sigma, a, g.dx, dt, kernel_args.cell_phases(f),
+                                                                      level, kappa, f.inv_rho[a], f.vel[a]])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         self.first.fill_(2**31 - 1)  # no particle is a cell's first: without holding, none is held back
-        films = [f.types, f.phase_cells, f.gas_volume, self.smoothed, self.film_speed, sim.geometry, dt]
+        films = Films()
+        films.cells, films.gas_volume = kernel_args.cell_phases(f), f.gas_volume
+        films.level, films.capillary_speed = self.smoothed, self.film_speed
+        particles = kernel_args.particles(p)
         if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
             self.count.zero_()
             self.leaving.zero_()
-            sim.launch(count_grid_particles, p.count, [p.x, p.phase, p.active, sim.geometry, self.count])
-            sim.launch(film_departures, p.count, [*films, p.x, p.phase, p.active, self.leaving, self.first])
-        sim.launch_particles(retract_gas_films, [*films, self.count, self.leaving, self.first, p.x, p.phase, p.active])
+            sim.launch(count_grid_particles, p.count, [sim.geometry, particles, self.count])
+            sim.launch(film_departures, p.count, [dt, sim.geometry, films, particles, self.leaving, self.first])
+        sim.launch_particles(retract_gas_films, [dt, sim.geometry, films, self.count, self.leaving, self.first,
+                                                 particles])

@@ -81,25 +81,17 @@ def p2g_gas(p_atm: float, geo: GridGeometry, particles: Particles, splat: Splat,
     """Gas cell state, volume-weighted: splat's gas mass, current volume V0 J, p V and kappa V, and the
     gas particles per cell (runs only with gas). Only cells with x index in [x_lo, x_hi) are written (a
     slab a part, as p2g: every cell still sums in particle order, whatever the split)."""
-    x = particles.x
-    J = particles.J
-    law = particles.gas_law
-    gamma = particles.gas_gamma
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
     p = wp.tid()
-    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
         return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    inv_dx = 1.0 / dx
-    s = make_stencil(grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim)
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    inv_dx = 1.0 / geo.dx
+    s = make_stencil(grid_coord(xp, geo.origin, inv_dx, CELL_OFFSET), geo.dim)
     if s.base[0] + 2 < x_lo or s.base[0] >= x_hi:  # the stencil misses this part's slab
         return
-    vol = particles.vol0[p] * J[p]
-    pg = gas_pressure(law[p], J[p], gamma[p], p_atm)
-    kappa = gas_compressibility(law[p], J[p], gamma[p], p_atm)
+    vol = particles.vol0[p] * particles.J[p]
+    pg = gas_pressure(particles.gas_law[p], particles.J[p], particles.gas_gamma[p], p_atm)
+    kappa = gas_compressibility(particles.gas_law[p], particles.J[p], particles.gas_gamma[p], p_atm)
     for i in range(wp.max(x_lo - s.base[0], 0), wp.min(x_hi - s.base[0], 3)):
         for j in range(3):
             for k in range(s.nk):
@@ -109,7 +101,7 @@ def p2g_gas(p_atm: float, geo: GridGeometry, particles: Particles, splat: Splat,
                 wp.atomic_add(splat.gas_volume, n[0], n[1], n[2], w * vol)
                 wp.atomic_add(splat.gas_pv, n[0], n[1], n[2], w * vol * pg)
                 wp.atomic_add(splat.gas_kv, n[0], n[1], n[2], w * vol * kappa)
-    c = (xp - origin) * inv_dx
+    c = (xp - geo.origin) * inv_dx
     cell_x = int(wp.floor(c[0]))
     if cell_x >= x_lo and cell_x < x_hi:
         wp.atomic_add(gas_count, cell_x, int(wp.floor(c[1])), int(wp.floor(c[2])), 1)
@@ -163,15 +155,11 @@ def update_gas_J(
     its J: what its cells' divergence holds beyond the correction's target is the solve's residual
     and, in a closed tank, the mean the singular solve removes (issue #12: -3.9% of the bubble's
     volume over the 2D benchmark at 40 cells). Particles start + tid (Simulation.launch_particles)."""
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
     p = wp.tid() + start
     if active[p] == 0 or phase[p] != PHASE_GAS or law[p] == 0 or not wp.isfinite(x[p]):
         return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    s = make_stencil(grid_coord(xp, origin, 1.0 / dx, CELL_OFFSET), dim)
+    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
+    s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
     r = float(0.0)
     for i in range(3):
         for j in range(3):

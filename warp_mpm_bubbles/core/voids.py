@@ -47,6 +47,8 @@ import warp as wp
 
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
 from .cells import cell_type_at
+from . import kernel_args
+from .kernel_args import Splat
 from .lines import Lines, line_end, line_first, make_lines, on_line
 
 wp.set_module_options({"enable_backward": False})
@@ -144,11 +146,9 @@ def fill_voids(is_void: wp.array3d(dtype=wp.int32), rho_liquid: float, cell_volu
 
 
 @wp.kernel
-def clear_holes(box: Lines, count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), dim: int,
-                rho_liquid: float, cell_volume: float, two_phase: int, phase: wp.array3d(dtype=wp.int32),
-                liq_mass: wp.array3d(dtype=float), liq_volume: wp.array3d(dtype=float),
-                gas_mass: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                gas_pv: wp.array3d(dtype=float), gas_kv: wp.array3d(dtype=float)):
+def clear_holes(box: Lines, dim: int, rho_liquid: float, cell_volume: float, two_phase: int,
+                count: wp.array3d(dtype=wp.int32), types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+                splat: Splat):
     """A fluid cell with no particle and no EMPTY neighbour (a hole inside the material, a former void
     included) holds nothing: the volume its neighbours' B-splines splat into it is not there. It
     becomes a liquid cell holding a trace (VOID_FILL) of liquid, so its full volume deficit counts
@@ -161,13 +161,13 @@ def clear_holes(box: Lines, count: wp.array3d(dtype=wp.int32), types: wp.array3d
         i, j, k = c[0], c[1], c[2]
         if types[i, j, k] == FLUID and count[i, j, k] == 0 and not beside_empty(types, dim, c):
             phase[i, j, k] = PHASE_LIQUID
-            liq_volume[i, j, k] = VOID_FILL * cell_volume
-            liq_mass[i, j, k] = rho_liquid * VOID_FILL * cell_volume
+            splat.liq_volume[i, j, k] = VOID_FILL * cell_volume
+            splat.liq_mass[i, j, k] = rho_liquid * VOID_FILL * cell_volume
             if two_phase != 0:
-                gas_mass[i, j, k] = 0.0
-                gas_volume[i, j, k] = 0.0
-                gas_pv[i, j, k] = 0.0
-                gas_kv[i, j, k] = 0.0
+                splat.gas_mass[i, j, k] = 0.0
+                splat.gas_volume[i, j, k] = 0.0
+                splat.gas_pv[i, j, k] = 0.0
+                splat.gas_kv[i, j, k] = 0.0
 
 
 @wp.func
@@ -397,9 +397,8 @@ class VoidPass:
             self.gaps_by_frame[sim.frame] = max(self.gaps_by_frame.get(sim.frame, 0), len(self.gap_cells))
         if self.clear_holes:
             box, dims = sim.region.cell_lines
-            sim.launch(clear_holes, dims, [box, f.cell_count, f.types, g.dim, self.rho_liquid, g.dx**3,
-                                              sim.two_phase, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass,
-                                              f.gas_volume, f.gas_pv, f.gas_kv])
+            sim.launch(clear_holes, dims, [box, g.dim, self.rho_liquid, g.dx**3, sim.two_phase, f.cell_count, f.types,
+                                              f.phase_cells, kernel_args.splat(f)])
 
     def _fill_voids(self, types, cells, labels):
         """Small voids (under POCKET_CELLS cells) become liquid with their full deficit; larger ones, in a

@@ -84,39 +84,31 @@ def advance_foam(
 ):
     """Age every foam particle by dt; burst the expired ones (their gas joins the atmosphere's
     ledger); move the others by the regime of the liquid fraction around them."""
-    phase = particles.phase
-    x = particles.x
-    active = particles.active
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
-    gravity = geo.gravity
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_FOAM:
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_FOAM:
         return
     remaining = life[p] - dt
     life[p] = remaining
     if remaining <= 0.0:
-        active[p] = 0
+        particles.active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(particles.mass[p]))
         return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    inv_dx = 1.0 / dx
-    phi = liquid_fraction(liq_volume, types, grid_coord(xp, origin, inv_dx, CELL_OFFSET), dim, inv_dx * inv_dx * inv_dx)
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    inv_dx = 1.0 / geo.dx
+    phi = liquid_fraction(liq_volume, types, grid_coord(xp, geo.origin, inv_dx, CELL_OFFSET), geo.dim, inv_dx * inv_dx * inv_dx)
     vp = particles.v[p]
     if phi < AIRBORNE_PHI:
-        vp = vp + dt * gravity  # spray: nothing to ride on
+        vp = vp + dt * geo.gravity  # spray: nothing to ride on
     else:
         # Relative to the liquid, foam settles where phi = 1/2: submerged it floats up (buoyant),
         # above the surface it sinks back (heavier than air), the faster the farther away.
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
-        vp = interpolate_velocity(vel, xp, origin, dx, dim) + lift * up
+        vp = interpolate_velocity(vel, xp, geo.origin, geo.dx, geo.dim) + lift * up
     moved = xp + dt * vp
-    active[p] = open_wall_exit(moved, geo, phase[p])  # LEAVING through an open wall: book_outflow retires it
-    xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    x[p] = xn
-    particles.v[p] = wall_stopped(moved, xn, vp, dim)  # a wall stops the motion into it, as in g2p
+    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])  # LEAVING through an open wall: book_outflow retires it
+    xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
+    particles.x[p] = xn
+    particles.v[p] = wall_stopped(moved, xn, vp, geo.dim)  # a wall stops the motion into it, as in g2p
 
 
 @wp.kernel
@@ -135,15 +127,10 @@ def gas_to_foam(
     life: wp.array(dtype=float),
 ):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
-    up_axis = geo.up_axis
-    up_sign = geo.up_sign
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
     p = wp.tid()
     if active[p] == 0 or phase[p] != PHASE_GAS:
         return
-    if not exposed_to_open_air(types, ceiling, cell_of(x[p], origin, dx), up_axis, up_sign, dim):
+    if not exposed_to_open_air(types, ceiling, cell_of(x[p], geo.origin, geo.dx), geo.up_axis, geo.up_sign, geo.dim):
         return
     phase[p] = PHASE_FOAM
     material[p] = foam_material

@@ -82,25 +82,18 @@ def volume_ratio(law: int, gamma: float, p_gauge: float, p_atm: float):
 def deposit_drag_reaction(geo: GridGeometry, particles: Particles, impulse: wp.array(dtype=wp.vec3),
                           face_mass: FaceField, vel: FaceField):
     """The liquid gets the momentum that the drag took from each bubble in its last update."""
-    x = particles.x
-    phase = particles.phase
-    active = particles.active
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_SUBGRID:
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_SUBGRID:
         return
     J = impulse[p]
     if wp.length_sq(J) == 0.0:
         return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    inv_dx = 1.0 / dx
-    add_face_impulse(vel.u, face_mass.u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim, J[0])
-    add_face_impulse(vel.v, face_mass.v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim, J[1])
-    if dim == 3:
-        add_face_impulse(vel.w, face_mass.w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim, J[2])
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    inv_dx = 1.0 / geo.dx
+    add_face_impulse(vel.u, face_mass.u, grid_coord(xp, geo.origin, inv_dx, U_OFFSET), geo.dim, J[0])
+    add_face_impulse(vel.v, face_mass.v, grid_coord(xp, geo.origin, inv_dx, V_OFFSET), geo.dim, J[1])
+    if geo.dim == 3:
+        add_face_impulse(vel.w, face_mass.w, grid_coord(xp, geo.origin, inv_dx, W_OFFSET), geo.dim, J[2])
 
 
 @wp.func
@@ -147,57 +140,43 @@ def advance_subgrid(
     resolved gas (a gas cell, or open air: the vent or foam stage that follows takes those). The
     drag's dt k is capped at the fluid mass the bubble's stencil holds (face_fluid_mass; the module
     docstring says why: the fluid takes the reaction explicitly)."""
-    rho_l = around.rho_l
-    phase = particles.phase
-    J = particles.J
-    x = particles.x
-    v = particles.v
-    active = particles.active
-    types = cells.types
-    up_axis = geo.up_axis
-    up_sign = geo.up_sign
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    domain_hi = geo.domain_hi
-    gravity = geo.gravity
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_SUBGRID:
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_SUBGRID:
         return
-    xp = clamp_to_domain(x[p], domain_hi, dx, dim)
-    c = cell_of(xp, origin, dx)
-    t = types[c[0], c[1], c[2]]
-    if joins_resolved_gas(types, cells.phase, ceiling, c, up_axis, up_sign):
-        phase[p] = PHASE_GAS
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    c = cell_of(xp, geo.origin, geo.dx)
+    t = cells.types[c[0], c[1], c[2]]
+    if joins_resolved_gas(cells.types, cells.phase, ceiling, c, geo.up_axis, geo.up_sign):
+        particles.phase[p] = PHASE_GAS
         impulse[p] = wp.vec3(0.0)
         return
     p_gauge = float(0.0)
     if t == FLUID:
         p_gauge = pressure[c[0], c[1], c[2]]
     Jp = volume_ratio(particles.gas_law[p], particles.gas_gamma[p], p_gauge, around.p_atm)
-    J[p] = Jp
+    particles.J[p] = Jp
     vol = particles.vol0[p] * Jp
     r = wp.pow(0.75 * vol / PI, 1.0 / 3.0)
     rho_g = particles.mass[p] / vol
-    m_eff = (rho_g + ADDED_MASS * rho_l) * vol
-    u_l = interpolate_velocity(vel, xp, origin, dx, dim)
-    fluid_mass = face_fluid_mass(face_mass, xp, origin, dx, dim)
-    b = m_eff * (v[p] - u_l) - dt * (rho_l - rho_g) * vol * gravity
+    m_eff = (rho_g + ADDED_MASS * around.rho_l) * vol
+    u_l = interpolate_velocity(vel, xp, geo.origin, geo.dx, geo.dim)
+    fluid_mass = face_fluid_mass(face_mass, xp, geo.origin, geo.dx, geo.dim)
+    b = m_eff * (particles.v[p] - u_l) - dt * (around.rho_l - rho_g) * vol * geo.gravity
     b_len = wp.length(b)
     w = wp.vec3(0.0)
     drag = float(0.0)  # dt k, capped
     if b_len > 0.0:
-        s = implicit_relative_speed(b_len, m_eff, dt, r, rho_l, around.mu, fluid_mass)
+        s = implicit_relative_speed(b_len, m_eff, dt, r, around.rho_l, around.mu, fluid_mass)
         w = b * (s / b_len)
-        drag = drag_impulse_per_speed(s, dt, r, rho_l, around.mu, fluid_mass)
+        drag = drag_impulse_per_speed(s, dt, r, around.rho_l, around.mu, fluid_mass)
     vp = u_l + w
     impulse[p] = drag * w  # what the drag took from the bubble goes to the fluid next step
     moved = xp + dt * vp
-    active[p] = open_wall_exit(moved, geo, phase[p])  # LEAVING through an open wall: book_outflow retires it
-    xn = clamp_to_domain(moved, domain_hi, dx, dim)
-    vp = wall_stopped(moved, xn, vp, dim)
-    x[p] = xn
-    v[p] = vp
+    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])  # LEAVING through an open wall: book_outflow retires it
+    xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
+    vp = wall_stopped(moved, xn, vp, geo.dim)
+    particles.x[p] = xn
+    particles.v[p] = vp
     wp.atomic_max(max_speed, 0, wp.length(vp))
 
 
@@ -238,18 +217,16 @@ def pack_candidates(
     rows: wp.array2d(dtype=wp.float64),
 ):
     """The candidates' rows, in particle order (the scan's): all the host reads of them."""
-    x = particles.x
-    v = particles.v
     p = wp.tid()
     if flag[p] == 0:
         return
     r = slot[p]
-    c = host_cell(x[p], origin, dx, cells, dim)
+    c = host_cell(particles.x[p], origin, dx, cells, dim)
     rows[r, 0] = wp.float64(p)
     rows[r, 1] = wp.float64(particles.phase[p])
     for a in range(3):
-        rows[r, 2 + a] = wp.float64(x[p][a])
-        rows[r, 5 + a] = wp.float64(v[p][a])
+        rows[r, 2 + a] = wp.float64(particles.x[p][a])
+        rows[r, 5 + a] = wp.float64(particles.v[p][a])
     rows[r, 8] = wp.float64(particles.mass[p])
     rows[r, 9] = wp.float64(particles.vol0[p])
     rows[r, 10] = wp.float64(particles.J[p])

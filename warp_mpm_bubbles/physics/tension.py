@@ -107,11 +107,10 @@ def apply_surface_tension_at(sigma: float, axis: int, dx: float, dt: float, cell
     """
     if inv_rho[i, j, k] == 0.0:
         return
-    types = cells.types
     hi = wp.vec3i(i, j, k)
     below = hi - unit(axis)
-    liquid_lo = is_liquid_cell(types, cells.phase, below)
-    liquid_hi = is_liquid_cell(types, cells.phase, hi)
+    liquid_lo = is_liquid_cell(cells.types, cells.phase, below)
+    liquid_hi = is_liquid_cell(cells.types, cells.phase, hi)
     if liquid_lo == liquid_hi:
         return
     cl = below
@@ -122,7 +121,7 @@ def apply_surface_tension_at(sigma: float, axis: int, dx: float, dt: float, cell
         cn = below
         orient = -1.0
     psi_l = level[cl[0], cl[1], cl[2]]  # (a liquid cell: not solid)
-    psi_n = mirrored_level(level, types, cn[0], cn[1], cn[2], psi_l)
+    psi_n = mirrored_level(level, cells.types, cn[0], cn[1], cn[2], psi_l)
     theta = float(0.5)
     if psi_l - psi_n > 1.0e-6:
         theta = wp.clamp(psi_l / (psi_l - psi_n), 0.0, 1.0)
@@ -179,27 +178,24 @@ def film_target(dt: float, geo: GridGeometry, films: Films, xp: wp.vec3):
     the interface's cells under-filled, 0.92, with holes: issue #12)."""
     types = films.cells.types
     phase_cells = films.cells.phase
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
-    c = cell_of(xp, origin, dx)
+    c = cell_of(xp, geo.origin, geo.dx)
     if not is_liquid_cell(types, phase_cells, c):
         return xp
-    if level_at_point(films.level, xp, origin, dx, dim) <= 0.0:
+    if level_at_point(films.level, xp, geo.origin, geo.dx, geo.dim) <= 0.0:
         return xp
     pull = wp.vec3(0.0)
-    for q in range(block_size(dim)):
-        n = c + block_offset(q, dim)
+    for q in range(block_size(geo.dim)):
+        n = c + block_offset(q, geo.dim)
         if is_phase_cell(types, phase_cells, n, PHASE_GAS):
-            d = cell_centre(n, origin, dx) - xp
-            if dim == 2:
+            d = cell_centre(n, geo.origin, geo.dx) - xp
+            if geo.dim == 2:
                 d[2] = 0.0  # the slab's centre plane, not the particle's place in its thickness
             pull += films.gas_volume[n[0], n[1], n[2]] * d
     length = wp.length(pull)
     if length == 0.0:
         return xp
-    step = wp.min(films.capillary_speed * dt, 0.25 * dx)
-    return clamp_to_domain(xp + (step / length) * pull, geo.domain_hi, dx, dim)
+    step = wp.min(films.capillary_speed * dt, 0.25 * geo.dx)
+    return clamp_to_domain(xp + (step / length) * pull, geo.domain_hi, geo.dx, geo.dim)
 
 
 @wp.func
@@ -212,13 +208,10 @@ def other_cell(x: wp.vec3, c: wp.vec3i, geo: GridGeometry):
 @wp.kernel
 def count_grid_particles(geo: GridGeometry, particles: Particles, count: wp.array3d(dtype=wp.int32)):
     """Liquid and gas particles per cell where they are now (after g2p moved them)."""
-    x = particles.x
-    phase = particles.phase
-    active = particles.active
     p = wp.tid()
-    if active[p] != ACTIVE or phase[p] > PHASE_GAS or not wp.isfinite(x[p]):
+    if particles.active[p] != ACTIVE or particles.phase[p] > PHASE_GAS or not wp.isfinite(particles.x[p]):
         return
-    c = cell_of(clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
+    c = cell_of(clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
     wp.atomic_add(count, c[0], c[1], c[2], 1)
 
 
@@ -226,13 +219,10 @@ def count_grid_particles(geo: GridGeometry, particles: Particles, count: wp.arra
 def film_departures(dt: float, geo: GridGeometry, films: Films, particles: Particles,
                     leaving: wp.array3d(dtype=wp.int32), first: wp.array3d(dtype=wp.int32)):
     """Per cell, how many film particles would retract out of it, and the lowest index among them."""
-    x = particles.x
-    phase = particles.phase
-    active = particles.active
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
         return
-    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
     c = cell_of(xp, geo.origin, geo.dx)
     if other_cell(film_target(dt, geo, films, xp), c, geo):
         wp.atomic_add(leaving, c[0], c[1], c[2], 1)
@@ -252,23 +242,19 @@ def retract_gas_films(start: int, dt: float, geo: GridGeometry, films: Films, co
     particle leaving a cell alone left a particle-free hole that read as free surface). Particles
     start + tid (Simulation.launch_particles: each writes only its own position).
     """
-    x = particles.x
-    phase = particles.phase
-    active = particles.active
     p = wp.tid() + start
-    if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
         return
-    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
-    dx = geo.dx
-    c = cell_of(xp, geo.origin, dx)
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    c = cell_of(xp, geo.origin, geo.dx)
     target = film_target(dt, geo, films, xp)
     if other_cell(target, c, geo) and leaving[c[0], c[1], c[2]] >= count[c[0], c[1], c[2]]:
         if first[c[0], c[1], c[2]] == p:  # the cell's last particle: stays, at the side facing its bubble
-            lo = cell_centre(c, geo.origin, dx) - wp.vec3(0.49 * dx)
-            hi = cell_centre(c, geo.origin, dx) + wp.vec3(0.49 * dx)
+            lo = cell_centre(c, geo.origin, geo.dx) - wp.vec3(0.49 * geo.dx)
+            hi = cell_centre(c, geo.origin, geo.dx) + wp.vec3(0.49 * geo.dx)
             target = wp.vec3(wp.clamp(target[0], lo[0], hi[0]), wp.clamp(target[1], lo[1], hi[1]),
                              wp.clamp(target[2], lo[2], hi[2]))
-    x[p] = target
+    particles.x[p] = target
 
 
 LEVEL_SET_SMOOTHING = 2  # binomial passes of psi before its normal and div(n) (tests/test_tension.py measures it)

@@ -193,22 +193,31 @@ def edge_stress(types: wp.array3d(dtype=wp.int32), mu: wp.array3d(dtype=float), 
     tau[i, j, k] = t
 
 
+@wp.struct
+class AroundFace:
+    """A quantity around the faces along one axis a: on the cells (the two beside a face), and on the
+    edges of the planes through a, across axis b1 and, in 3D, b2 (b2 = -1 in 2D: no second plane)."""
+
+    cells: wp.array3d(dtype=float)
+    edges_1: wp.array3d(dtype=float)
+    b1: int
+    edges_2: wp.array3d(dtype=float)
+    b2: int
+
+
 @wp.func
-def stress_divergence(tau_n: wp.array3d(dtype=float), tau_1: wp.array3d(dtype=float), b1: int,
-                      tau_2: wp.array3d(dtype=float), b2: int, f: wp.vec3i, a: int, inv_dx: float):
+def stress_divergence(tau: AroundFace, f: wp.vec3i, a: int, inv_dx: float):
     """(div tau)_a at face f: normal stress from its two cells, shear from its edges along b1 (and b2)."""
-    div = value_at(tau_n, f) - value_at(tau_n, f - unit(a))
-    div += value_at(tau_1, f + unit(b1)) - value_at(tau_1, f)
-    if b2 >= 0:
-        div += value_at(tau_2, f + unit(b2)) - value_at(tau_2, f)
+    div = value_at(tau.cells, f) - value_at(tau.cells, f - unit(a))
+    div += value_at(tau.edges_1, f + unit(tau.b1)) - value_at(tau.edges_1, f)
+    if tau.b2 >= 0:
+        div += value_at(tau.edges_2, f + unit(tau.b2)) - value_at(tau.edges_2, f)
     return div * inv_dx
 
 
 @wp.kernel
-def face_operator(mode: int, x: wp.array3d(dtype=float), inv_rho: wp.array3d(dtype=float),
-                  tau_n: wp.array3d(dtype=float), tau_1: wp.array3d(dtype=float), b1: int,
-                  tau_2: wp.array3d(dtype=float), b2: int, a: int, inv_dx: float, dt: float,
-                  out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+def face_operator(mode: int, a: int, inv_dx: float, dt: float, tau: AroundFace, x: wp.array3d(dtype=float),
+                  inv_rho: wp.array3d(dtype=float), out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
     """On the unknown faces (inv_rho > 0), with K x = -div tau(x):
     OPERATOR: out = rho x + dt K x (dots[0] += x . out); RHS: out = -dt K x;
     EXPLICIT: out = x - dt/rho K x. Elsewhere out = 0 (EXPLICIT: x, the value is kept)."""
@@ -222,7 +231,7 @@ def face_operator(mode: int, x: wp.array3d(dtype=float), inv_rho: wp.array3d(dty
         else:
             out[i, j, k] = 0.0
         return
-    kx = -stress_divergence(tau_n, tau_1, b1, tau_2, b2, f, a, inv_dx)
+    kx = -stress_divergence(tau, f, a, inv_dx)
     if mode == OPERATOR:
         y = xf / ir + dt * kx
         out[i, j, k] = y
@@ -241,12 +250,16 @@ def edge_weight(types: wp.array3d(dtype=wp.int32), mu_e: wp.array3d(dtype=float)
 
 
 @wp.kernel
-def face_diagonal(types: wp.array3d(dtype=wp.int32), inv_rho: wp.array3d(dtype=float),
-                  mu_c: wp.array3d(dtype=float), mu_1: wp.array3d(dtype=float), b1: int,
-                  mu_2: wp.array3d(dtype=float), b2: int, a: int, inv_dx2: float, dt: float,
-                  diag: wp.array3d(dtype=float), rate: wp.array(dtype=float)):
+def face_diagonal(a: int, inv_dx2: float, dt: float, types: wp.array3d(dtype=wp.int32),
+                  inv_rho: wp.array3d(dtype=float), mu: AroundFace, diag: wp.array3d(dtype=float),
+                  rate: wp.array(dtype=float)):
     """diag = rho + dt K_ff (the Jacobi preconditioner); rate[0] = max over faces of
     inv_rho * (Gershgorin row sum of K): explicit Euler is stable for dt <= 2 / rate."""
+    mu_c = mu.cells
+    mu_1 = mu.edges_1
+    mu_2 = mu.edges_2
+    b1 = mu.b1
+    b2 = mu.b2
     i, j, k = wp.tid()
     f = wp.vec3i(i, j, k)
     ir = inv_rho[i, j, k]
@@ -338,12 +351,16 @@ class ViscousSolver:
         else:
             wp.launch(kernel, shape, inputs=inputs, device=self.device)
 
-    def _planes_of(self, a: int, arrays: dict):
-        """The (array, other axis) pairs of the planes through axis a; 2D pads with (first, -1)."""
-        pairs = [(arrays[p], p[1] if p[0] == a else p[0]) for p in self.planes if a in p]
+    def _around(self, a: int, cells, edges: dict) -> AroundFace:
+        """The quantity on `cells` and on the edges of the planes through axis a (edges: by plane);
+        2D pads the second plane with the first, across axis -1."""
+        pairs = [(edges[p], p[1] if p[0] == a else p[0]) for p in self.planes if a in p]
         if len(pairs) == 1:
             pairs.append((pairs[0][0], -1))
-        return [v for pair in pairs for v in pair]
+        around = AroundFace()
+        around.cells = cells
+        (around.edges_1, around.b1), (around.edges_2, around.b2) = pairs
+        return around
 
     def set_viscosity(self, types, liq_volume, gas_volume, two_phase: int, mu_liquid: float, mu_gas: float):
         """Cell and edge viscosities from this step's cell types and phase volumes."""
@@ -359,7 +376,7 @@ class ViscousSolver:
         inv_dx2 = self.inv_dx * self.inv_dx
         for a in self.grid.axes:
             self._launch(face_diagonal, self.diag[a].shape,
-                         [types, inv_rho[a], self.mu_cell, *self._planes_of(a, self.mu_edge), a, inv_dx2, float(dt),
+                         [a, inv_dx2, float(dt), types, inv_rho[a], self._around(a, self.mu_cell, self.mu_edge),
                           self.diag[a], self.rate])
         return float(self.rate.numpy()[0])
 
@@ -375,8 +392,8 @@ class ViscousSolver:
         self.dots.zero_()
         for a in self.grid.axes:
             self._launch(face_operator, x[a].shape,
-                         [mode, x[a], inv_rho[a], self.tau_cell[a], *self._planes_of(a, self.tau_edge), a,
-                          self.inv_dx, float(dt), out[a], self.dots])
+                         [mode, a, self.inv_dx, float(dt), self._around(a, self.tau_cell[a], self.tau_edge), x[a],
+                          inv_rho[a], out[a], self.dots])
         return float(self.dots.numpy()[0]) if mode == OPERATOR else 0.0
 
     def explicit(self, types, inv_rho, vel, dt: float):

@@ -14,7 +14,7 @@ import warp as wp
 
 from ..core.grid import EMPTY
 from ..core.cells import inside, is_solid, unit
-from ..core.lines import Lines, in_box, line_end, line_first, on_line
+from ..core.lines import Lines, in_box, line_end, line_first, line_kernel, on_line
 
 wp.set_module_options({"enable_backward": False})
 
@@ -28,26 +28,14 @@ def inner_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32
     return wp.where(is_solid(types[c[0], c[1], c[2]]), centre, level[c[0], c[1], c[2]])
 
 
-@wp.kernel
-def height_fraction(box: Lines, liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                    types: wp.array3d(dtype=wp.int32), inv_cell_vol: float, dim: int, has_gas: int,
-                    fraction: wp.array3d(dtype=float)):
+@wp.func
+def height_fraction_at(inv_cell_vol: float, dim: int, has_gas: int, liq_volume: wp.array3d(dtype=float),
+                       gas_volume: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32),
+                       fraction: wp.array3d(dtype=float), i: int, j: int, k: int):
     """The liquid fraction the heights sum, as psi = 2 phi - 1 (not clamped). Away from air (no EMPTY
     cell in the 3^dim block) it is the liquid's share of the particles' volume, L / (L + G): exactly
     +-1 in either bulk, where L / V alone carries the particles' packing noise (6% a cell), which the
     column sums would turn into curvature noise. Beside air, L / V: air holds no particles to share with."""
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        height_fraction_at(liq_volume, gas_volume, types, inv_cell_vol, dim, has_gas, fraction,
-                           c[0], c[1], c[2])
-
-
-@wp.func
-def height_fraction_at(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                       types: wp.array3d(dtype=wp.int32), inv_cell_vol: float, dim: int, has_gas: int,
-                       fraction: wp.array3d(dtype=float), i: int, j: int, k: int):
     liquid = liq_volume[i, j, k]
     if liquid == 0.0:  # -1 either way: no neighbourhood to look at (most of a box around a splash)
         fraction[i, j, k] = -1.0
@@ -67,6 +55,9 @@ def height_fraction_at(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array
     if not beside_air and total > 0.0:
         value = 2.0 * liquid / total - 1.0
     fraction[i, j, k] = value
+
+
+height_fraction = line_kernel(height_fraction_at)
 
 
 COLUMN_HALF = 3  # a height column spans 2 * 3 + 1 cells: the splat's 1.5 cells each side, and a slope of 1
@@ -108,8 +99,8 @@ def column_height(fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.
 
 
 @wp.kernel
-def column_heights(box: Lines, fraction: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32), dim: int,
-                   lo: wp.vec3i, hi: wp.vec3i, heights: wp.array3d(dtype=wp.vec3)):
+def column_heights(box: Lines, dim: int, lo: wp.vec3i, hi: wp.vec3i, fraction: wp.array3d(dtype=float),
+                   types: wp.array3d(dtype=wp.int32), heights: wp.array3d(dtype=wp.vec3)):
     """Per cell, the column_height along each axis (-1 where the column is not valid; a height is
     >= 0). Launched over the box [lo, hi) grown by a cell, since the curvature at a cell reads the
     columns of its neighbours: each column is summed once, not by all nine cells."""
@@ -184,10 +175,10 @@ def centred_column(heights: wp.array3d(dtype=wp.vec3), c: wp.vec3i, axis: int, l
     return moved
 
 
-@wp.kernel
-def surface_curvature(box: Lines, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
-                      heights: wp.array3d(dtype=wp.vec3), dx: float, dim: int, curvature: wp.array3d(dtype=float),
-                      from_heights: wp.array3d(dtype=float)):
+@wp.func
+def surface_curvature_at(dx: float, dim: int, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
+                         heights: wp.array3d(dtype=wp.vec3), curvature: wp.array3d(dtype=float),
+                         from_heights: wp.array3d(dtype=float), i: int, j: int, k: int):
     """kappa near the liquid's surface only (where the smoothed psi, `level`, is not +-1): from the
     column `heights` along the axis nearest the normal where the columns around the cell are valid
     (`from_heights` 1), else div(grad psi / |grad psi|) of `level`, central differences (thin films,
@@ -197,17 +188,6 @@ def surface_curvature(box: Lines, types: wp.array3d(dtype=wp.int32), level: wp.a
     for a drop: the pressure jump (non-liquid minus liquid) is sigma kappa in both cases. Clamped
     to 1/dx, the largest curvature the grid can carry.
     """
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        surface_curvature_at(types, level, heights, dx, dim, curvature, from_heights, c[0], c[1], c[2])
-
-
-@wp.func
-def surface_curvature_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
-                         heights: wp.array3d(dtype=wp.vec3), dx: float, dim: int, curvature: wp.array3d(dtype=float),
-                         from_heights: wp.array3d(dtype=float), i: int, j: int, k: int):
     c = wp.vec3i(i, j, k)
     curvature[i, j, k] = 0.0
     from_heights[i, j, k] = 0.0
@@ -255,23 +235,16 @@ def surface_curvature_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dt
     curvature[i, j, k] = wp.clamp(kappa, -1.0 / dx, 1.0 / dx)
 
 
-@wp.kernel
-def average_curvature(box: Lines, curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float), dim: int,
-                      out: wp.array3d(dtype=float)):
+surface_curvature = line_kernel(surface_curvature_at)
+
+
+@wp.func
+def average_curvature_at(dim: int, curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float),
+                         out: wp.array3d(dtype=float), i: int, j: int, k: int):
     """A height-function curvature becomes the mean of those in its 3^dim block (binomial weights).
     Each measures the same stretch of surface, so on a circle they agree and the mean keeps the value
     (no bias, where smoothing the fraction first flattened the heights: +6% at 8 cells per radius);
     the particles' noise averages out. div(n) cells are left as they are."""
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        average_curvature_at(curvature, from_heights, dim, out, c[0], c[1], c[2])
-
-
-@wp.func
-def average_curvature_at(curvature: wp.array3d(dtype=float), from_heights: wp.array3d(dtype=float), dim: int,
-                         out: wp.array3d(dtype=float), i: int, j: int, k: int):
     out[i, j, k] = curvature[i, j, k]
     if from_heights[i, j, k] == 0.0:
         return
@@ -287,3 +260,6 @@ def average_curvature_at(curvature: wp.array3d(dtype=float), from_heights: wp.ar
                         total += w * curvature[n[0], n[1], n[2]]
                         weight += w
     out[i, j, k] = total / weight
+
+
+average_curvature = line_kernel(average_curvature_at)

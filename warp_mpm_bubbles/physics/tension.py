@@ -51,24 +51,14 @@ def mirrored_level(level: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.in
     return v
 
 
-@wp.kernel
-def smooth_level_set(box: Lines, dim: int, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
-                     out: wp.array3d(dtype=float)):
+@wp.func
+def smooth_level_set_at(dim: int, types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float),
+                        out: wp.array3d(dtype=float), i: int, j: int, k: int):
     """One pass of the binomial filter (1 2 1)/4 per axis. Particle jitter makes psi noisy at the
     scale of a cell; its second derivatives (the curvature) would turn that noise into spurious
     capillary currents. The 3^dim block in x, y, z order, in constant loops, which Warp unrolls (a loop
     over block_offset(q) cost 6x the time); the weights sum to 4^dim. Only cells on the arrays' edge
     check for neighbours outside them."""
-    ti, tj, tk = wp.tid()
-    first = line_first(box, ti, tj, tk)
-    for s in range(first[box.axis], line_end(box, first)):
-        c = on_line(first, box.axis, s)
-        smooth_level_set_at(types, level, dim, out, c[0], c[1], c[2])
-
-
-@wp.func
-def smooth_level_set_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dtype=float), dim: int,
-                        out: wp.array3d(dtype=float), i: int, j: int, k: int):
     value = level[i, j, k]
     if is_solid(types[i, j, k]):
         out[i, j, k] = value
@@ -92,6 +82,9 @@ def smooth_level_set_at(types: wp.array3d(dtype=wp.int32), level: wp.array3d(dty
     if dim == 2:
         weight = 32.0  # (the slab's block: z offset 0, weight factor 2)
     out[i, j, k] = total / weight
+
+
+smooth_level_set = line_kernel(smooth_level_set_at)
 
 
 @wp.func
@@ -312,20 +305,20 @@ class TensionStage(Stage):
             sim.launch_lines(smooth_level_set, cells, [g.dim, f.types, level, smoothed])
             level, smoothed = smoothed, level
         gas_volume = f.gas_volume if sim.has_gas else f.liq_volume  # (not read without gas)
-        sim.launch_lines(height_fraction, cells, [f.liq_volume, gas_volume, f.types, 1.0 / g.dx**3, g.dim,
-                                                  int(sim.has_gas), self.fraction])
+        sim.launch_lines(height_fraction, cells, [1.0 / g.dx**3, g.dim, int(sim.has_gas), f.liq_volume, gas_volume,
+                                                  f.types, self.fraction])
         lo, hi = r.box
         # The box grown: the curvature reads the columns beside its best-centred one, which is up to
         # CENTRING_SHIFT cells off along the axis.
         start = [max(a - CENTRING_SHIFT, 0) for a in lo]
         end = [min(b + CENTRING_SHIFT, n) for b, n in zip(hi, g.cells)]
         sim.launch_lines(column_heights, make_lines(start, end, g.dim, sim.device),
-                         [self.fraction, f.types, g.dim, r.lo, wp.vec3i(*hi), self.heights])
+                         [g.dim, r.lo, wp.vec3i(*hi), self.fraction, f.types, self.heights])
         kappa, spare = self.kappa, self.kappa_tmp
-        sim.launch_lines(surface_curvature, cells, [f.types, level, self.heights, g.dx, g.dim, kappa,
+        sim.launch_lines(surface_curvature, cells, [g.dx, g.dim, f.types, level, self.heights, kappa,
                                                     self.from_heights])
         for _ in range(CURVATURE_AVERAGING):
-            sim.launch_lines(average_curvature, cells, [kappa, self.from_heights, g.dim, spare])
+            sim.launch_lines(average_curvature, cells, [g.dim, kappa, self.from_heights, spare])
             kappa, spare = spare, kappa
         self.curvature = kappa
         self.smoothed = level  # the films' side of the interface (after_g2p)

@@ -429,7 +429,8 @@ extrapolate_velocity = line_kernel(extrapolate_velocity_at)
 
 
 @wp.func
-def enforce_walls_at(axis: int, types: wp.array3d(dtype=wp.int32), vel: wp.array3d(dtype=float), i: int, j: int, k: int):
+def enforce_walls_at(axis: int, types: wp.array3d(dtype=wp.int32), vel: wp.array3d(dtype=float), i: int, j: int,
+                     k: int):
     """Zero normal velocity at solid faces; inside no-slip walls also zero the tangential velocity.
 
     Inside free-slip walls the extrapolated tangential velocity stays, so particles slide along.

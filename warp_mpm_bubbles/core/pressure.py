@@ -22,7 +22,8 @@ import warp as wp
 
 from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
-from .kernel_args import PlaneSums, PointPreconditioner, PressureOperator, plane_sums, point_preconditioner, pressure_operator
+from .kernel_args import (PlaneSums, PointPreconditioner, PressureOperator, plane_sums, point_preconditioner,
+                          pressure_operator)
 from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
 from .threads import Parallel, line_slabs
@@ -478,7 +479,8 @@ class PressureSolver:
 
     def _sum_fluid(self, types, v, out_slot: int, squares: bool):
         """scalars[out_slot] = the sum of v (or of v^2) over the fluid cells."""
-        self._run(self._record_cells(fluid_sums, [int(squares), self.done, types, v, plane_sums(self.planes, self.box[0][0])]))
+        sums = plane_sums(self.planes, self.box[0][0])
+        self._run(self._record_cells(fluid_sums, [int(squares), self.done, types, v, sums]))
         self._run(self._reduce(0, 1, self.scalars, out_slot))
 
     def _center(self, types, v, sums, row: int, slot: int, n: int):

@@ -368,7 +368,8 @@ class Simulation:
     def _grid_velocity_and_cells(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
-            self.launch_lines(gk.momentum_to_velocity, r.face_lines[a], [self.gravity[a], dt, f.mom[a], f.face_mass[a], f.vel[a]])
+            self.launch_lines(gk.momentum_to_velocity, r.face_lines[a],
+                              [self.gravity[a], dt, f.mom[a], f.face_mass[a], f.vel[a]])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
         step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
         self.launch_lines(gk.classify_cells, r.cell_lines,
@@ -390,8 +391,9 @@ class Simulation:
         fields = [kernel_args.cell_phases(f), kernel_args.face_field(f.inv_rho), kernel_args.face_field(f.vel),
                   kernel_args.splat(f), kernel_args.pressure_rows(f), f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
+        slabs = line_slabs(*r.cell_lines, self.parallel.threads)
         self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
-                                                          for q, (slab, d) in enumerate(line_slabs(*r.cell_lines, self.parallel.threads))])
+                                                          for q, (slab, d) in enumerate(slabs)])
 
     def _solve_pressure(self, dt: float):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
@@ -462,7 +464,8 @@ class Simulation:
             self.speed_parts.zero_()
             cuts = split(0, p.count, self.parallel.threads)
             line = threads.CACHE_LINE_FLOATS
-            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args, self.speed_parts])
+            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args,
+                                                             self.speed_parts])
                                                     for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
             self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
         self.book_outflow()

@@ -137,18 +137,20 @@ def gas_volume_rate(
     rate[i, j, k] = (div - target_div[i, j, k]) * dx * dx * dx / vg
 
 
+@wp.func
+def compressible_gas_stencil(geo: GridGeometry, particles: Particles, p: int):
+    """(True, the stencil of the cells it splats to) for an active compressible gas particle (law not
+    0) at a finite position; else (False, an empty stencil)."""
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or particles.gas_law[p] == 0:
+        return False, Stencil()
+    if not wp.isfinite(particles.x[p]):
+        return False, Stencil()
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    return True, make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
+
+
 @wp.kernel
-def update_gas_J(
-    start: int,
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    law: wp.array(dtype=wp.int32),
-    rate: wp.array3d(dtype=float),
-    geo: GridGeometry,
-    dt: float,
-    J: wp.array(dtype=float),
-):
+def update_gas_J(start: int, dt: float, geo: GridGeometry, rate: wp.array3d(dtype=float), particles: Particles):
     """Gas particles take their cells' gas volume change, shared in proportion to the volume
     each contributed in p2g_gas (same weights, same positions), so the gas as a whole changes
     volume exactly as its cells do: sum_p w_pc V_p J_p = V_gas,c. Incompressible gas (law 0) keeps
@@ -156,10 +158,9 @@ def update_gas_J(
     and, in a closed tank, the mean the singular solve removes (issue #12: -3.9% of the bubble's
     volume over the 2D benchmark at 40 cells). Particles start + tid (Simulation.launch_particles)."""
     p = wp.tid() + start
-    if active[p] == 0 or phase[p] != PHASE_GAS or law[p] == 0 or not wp.isfinite(x[p]):
+    gas, s = compressible_gas_stencil(geo, particles, p)
+    if not gas:
         return
-    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
-    s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
     r = float(0.0)
     for i in range(3):
         for j in range(3):
@@ -167,7 +168,7 @@ def update_gas_J(
                 r += s.wx[i] * s.wy[j] * s.wz[k] * rate[s.base[0] + i, s.base[1] + j, s.base[2] + k]
     # At most a factor e per step: a guard for a cell whose gas is a sliver (the volume change
     # shared by tiny gas volumes), never reached in the validation cases.
-    J[p] = J[p] * wp.exp(wp.clamp(dt * r, -1.0, 1.0))
+    particles.J[p] = particles.J[p] * wp.exp(wp.clamp(dt * r, -1.0, 1.0))
 
 
 @wp.func
@@ -297,7 +298,8 @@ def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: i
 
 
 @wp.kernel(enable_backward=False)
-def split_pairs(box: Lines, pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float)):
+def split_pairs(box: Lines, pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float),
+                second: wp.array3d(dtype=float)):
     """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read,
     over a box of them (core/lines.py)."""
     ti, tj, tk = wp.tid()

@@ -95,7 +95,8 @@ def advance_foam(
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
     inv_dx = 1.0 / geo.dx
-    phi = liquid_fraction(liq_volume, types, grid_coord(xp, geo.origin, inv_dx, CELL_OFFSET), geo.dim, inv_dx * inv_dx * inv_dx)
+    phi = liquid_fraction(liq_volume, types, grid_coord(xp, geo.origin, inv_dx, CELL_OFFSET), geo.dim,
+                          inv_dx * inv_dx * inv_dx)
     vp = particles.v[p]
     if phi < AIRBORNE_PHI:
         vp = vp + dt * geo.gravity  # spray: nothing to ride on
@@ -105,38 +106,28 @@ def advance_foam(
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
         vp = interpolate_velocity(vel, xp, geo.origin, geo.dx, geo.dim) + lift * up
     moved = xp + dt * vp
-    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])  # LEAVING through an open wall: book_outflow retires it
+    # LEAVING through an open wall: book_outflow retires it
+    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])
     xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
     particles.x[p] = xn
     particles.v[p] = wall_stopped(moved, xn, vp, geo.dim)  # a wall stops the motion into it, as in g2p
 
 
 @wp.kernel
-def gas_to_foam(
-    types: wp.array3d(dtype=wp.int32),
-    ceiling: wp.array3d(dtype=wp.int32),
-    geo: GridGeometry,
-    foam_material: int,
-    mean_life: float,
-    seed: int,
-    x: wp.array(dtype=wp.vec3),
-    active: wp.array(dtype=wp.int32),
-    phase: wp.array(dtype=wp.int32),
-    material: wp.array(dtype=wp.int32),
-    ids: wp.array(dtype=wp.int64),
-    life: wp.array(dtype=float),
-):
+def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeometry, types: wp.array3d(dtype=wp.int32),
+                ceiling: wp.array3d(dtype=wp.int32), particles: Particles, life: wp.array(dtype=float)):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS:
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS:
         return
-    if not exposed_to_open_air(types, ceiling, cell_of(x[p], geo.origin, geo.dx), geo.up_axis, geo.up_sign, geo.dim):
+    c = cell_of(particles.x[p], geo.origin, geo.dx)
+    if not exposed_to_open_air(types, ceiling, c, geo.up_axis, geo.up_sign, geo.dim):
         return
-    phase[p] = PHASE_FOAM
-    material[p] = foam_material
+    particles.phase[p] = PHASE_FOAM
+    particles.material[p] = foam_material
     # A hash of (seed, particle id): no generator state to carry or checkpoint, and the same draw
     # wherever compaction has moved the particle.
-    state = wp.rand_init(seed, int(ids[p]))
+    state = wp.rand_init(seed, int(particles.ids[p]))
     life[p] = -mean_life * wp.log(1.0 - wp.randf(state))  # exponential; randf is in [0, 1)
 
 
@@ -161,8 +152,8 @@ class FoamStage(Stage):
         f, p = sim.fields, sim.particles
         self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
         sim.launch(gas_to_foam, p.count,
-                   [f.types, f.ceiling, sim.geometry, self.material, self.settings.lifetime,
-                    self._seed, p.x, p.active, p.phase, p.material, p.ids, p.foam_life])
+                   [self.material, self.settings.lifetime, self._seed, sim.geometry, f.types, f.ceiling,
+                    kernel_args.particles(p), p.foam_life])
 
     def advance(self, sim, dt: float):
         f, p = sim.fields, sim.particles

@@ -172,7 +172,8 @@ def advance_subgrid(
     vp = u_l + w
     impulse[p] = drag * w  # what the drag took from the bubble goes to the fluid next step
     moved = xp + dt * vp
-    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])  # LEAVING through an open wall: book_outflow retires it
+    # LEAVING through an open wall: book_outflow retires it
+    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])
     xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
     vp = wall_stopped(moved, xn, vp, geo.dim)
     particles.x[p] = xn

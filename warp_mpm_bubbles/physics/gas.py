@@ -29,8 +29,8 @@ from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
 from ..core.stage import Stage
 from ..core.gas_law import GAS_ADIABATIC, gas_pressure
-from ..core.transfer_kernels import (CELL_OFFSET, clamp_to_domain, gas_volume_rate,
-                                     grid_coord, make_stencil, p2g_gas, update_gas_J)
+from ..core.kernel_args import Particles
+from ..core.transfer_kernels import compressible_gas_stencil, gas_volume_rate, p2g_gas, update_gas_J
 from .cavity import CAVITY_ENTER, CAVITY_GAS, Cavities
 
 wp.set_module_options({"enable_backward": False})
@@ -96,31 +96,18 @@ def exposed_to_open_air(
 
 
 @wp.kernel
-def vent_exposed_gas(
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    pmass: wp.array(dtype=float),
-    types: wp.array3d(dtype=wp.int32),
-    ceiling: wp.array3d(dtype=wp.int32),
-    geo: GridGeometry,
-    active: wp.array(dtype=wp.int32),
-    vented_mass: wp.array(dtype=wp.float64),
-):
+def vent_exposed_gas(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), ceiling: wp.array3d(dtype=wp.int32),
+                     particles: Particles, vented_mass: wp.array(dtype=wp.float64)):
     """Gas that reaches the open air joins it: the particle is retired and its mass booked as
     vented, so gas mass stays exactly accounted for.
     """
-    up_axis = geo.up_axis
-    up_sign = geo.up_sign
-    origin = geo.origin
-    dx = geo.dx
-    dim = geo.dim
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS:
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS:
         return
-    c = cell_of(x[p], origin, dx)
-    if exposed_to_open_air(types, ceiling, c, up_axis, up_sign, dim):
-        active[p] = 0
-        wp.atomic_add(vented_mass, 0, wp.float64(pmass[p]))
+    c = cell_of(particles.x[p], geo.origin, geo.dx)
+    if exposed_to_open_air(types, ceiling, c, geo.up_axis, geo.up_sign, geo.dim):
+        particles.active[p] = 0
+        wp.atomic_add(vented_mass, 0, wp.float64(particles.mass[p]))
 
 
 # ------------------------------------------------------------------------- the liquid's own field
@@ -162,19 +149,8 @@ SPREAD_GATE = MAX_PRESSURE_SPREAD - 1.0  # checked only while some gas is a cavi
 
 
 @wp.kernel
-def limit_gas_pressure_spread(
-    x: wp.array(dtype=wp.vec3),
-    phase: wp.array(dtype=wp.int32),
-    active: wp.array(dtype=wp.int32),
-    law: wp.array(dtype=wp.int32),
-    gamma: wp.array(dtype=float),
-    gas_volume: wp.array3d(dtype=float),
-    gas_pv: wp.array3d(dtype=float),
-    p_atm: float,
-    spread: float,
-    geo: GridGeometry,
-    J: wp.array(dtype=float),
-):
+def limit_gas_pressure_spread(p_atm: float, spread: float, geo: GridGeometry, gas_volume: wp.array3d(dtype=float),
+                              gas_pv: wp.array3d(dtype=float), particles: Particles):
     """A gas particle's absolute pressure stays within `spread` times the highest of its cells'
     (the pressure the solve sees: volume-weighted, so a particle crushed to no volume has no say in
     it). A cell's volume change is shared by all its particles alike, so one already crushed (a
@@ -182,10 +158,12 @@ def limit_gas_pressure_spread(
     low, until its pressure, and with it the gas_expansion step, ran away (1e9 Pa, 1e-17 s, then
     NaN, after a 0.5%-ambient cavity closed). Measured spread in the 0.2 p_inf collapse: 1.26."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS or law[p] == 0 or not wp.isfinite(x[p]):
+    gas, s = compressible_gas_stencil(geo, particles, p)
+    if not gas:
         return
-    xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
-    s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
+    law = particles.gas_law
+    gamma = particles.gas_gamma
+    J = particles.J
     highest = float(0.0)
     for i in range(3):
         for j in range(3):
@@ -405,18 +383,18 @@ class GasStage(Stage):
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
         box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
-        sim.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types, kernel_args.face_field(f.gas_vel or f.vel),
-                                                f.gas_volume, f.target_div, f.gas_rate])
-        sim.launch_particles(update_gas_J, [p.x, p.phase, p.active, p.gas_law, f.gas_rate, sim.geometry, dt, p.J])
+        sim.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types,
+                                                kernel_args.face_field(f.gas_vel or f.vel), f.gas_volume, f.target_div,
+                                                f.gas_rate])
+        sim.launch_particles(update_gas_J, [dt, sim.geometry, f.gas_rate, kernel_args.particles(p)])
         self.cavities.update_J(sim, dt)
         ambient = sim.scene.domain.ambient_pressure
         if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
             sim.launch(limit_gas_pressure_spread, p.count,
-                       [p.x, p.phase, p.active, p.gas_law, p.gas_gamma, f.gas_volume, f.gas_pv, ambient,
-                        MAX_PRESSURE_SPREAD, sim.geometry, p.J])
+                       [ambient, MAX_PRESSURE_SPREAD, sim.geometry, f.gas_volume, f.gas_pv, kernel_args.particles(p)])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         sim.launch(vent_exposed_gas, p.count,
-                   [p.x, p.phase, p.mass, f.types, f.ceiling, sim.geometry, p.active, f.vented_mass])
+                   [sim.geometry, f.types, f.ceiling, kernel_args.particles(p), f.vented_mass])
 

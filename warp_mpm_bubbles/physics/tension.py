@@ -29,7 +29,8 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def liquid_level_set(box: Lines, inv_cell_vol: float, liq_volume: wp.array3d(dtype=float), level: wp.array3d(dtype=float)):
+def liquid_level_set(box: Lines, inv_cell_vol: float, liq_volume: wp.array3d(dtype=float),
+                     level: wp.array3d(dtype=float)):
     """psi = 2 phi_liquid - 1 in [-1, 1]: > 0 in the liquid, < 0 in gas or air, 0 on its surface.
     (box: the cells of the launch, a line a thread, core/lines.py.)"""
     ti, tj, tk = wp.tid()
@@ -323,8 +324,8 @@ class TensionStage(Stage):
         self.curvature = kappa
         self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
-            sim.launch_lines(apply_surface_tension, r.face_lines[a], [self.sigma, a, g.dx, dt, kernel_args.cell_phases(f),
-                                                                      level, kappa, f.inv_rho[a], f.vel[a]])
+            sim.launch_lines(apply_surface_tension, r.face_lines[a],
+                             [self.sigma, a, g.dx, dt, kernel_args.cell_phases(f), level, kappa, f.inv_rho[a], f.vel[a]])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles

@@ -187,7 +187,7 @@ class FacePairs:
     w: wp.array3d(dtype=wp.vec2)
 
 
-def particles(state) -> Particles:
+def particle_arrays(state) -> Particles:
     """The struct of a ParticleState's arrays (rebuilt at each launch: the arrays grow)."""
     p = Particles()
     p.x, p.v, p.C, p.mass, p.vol0, p.J = state.x, state.v, state.C, state.mass, state.vol0, state.J

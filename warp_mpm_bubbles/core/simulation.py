@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
-from . import kernel_args
+from .kernel_args import cell_phases, face_field, face_pairs, particle_arrays, pressure_rows, splat, step_params
 from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
@@ -347,8 +347,7 @@ class Simulation:
         f, p, r = self.fields, self.particles, region or self.region.whole
         for arr in (*f.face_pairs, f.cell_pairs, f.cell_count, f.nonfinite):
             arr.zero_()
-        args = [self.geometry, kernel_args.particles(p), kernel_args.face_pairs(f.face_pairs), f.cell_pairs,
-                f.cell_count, f.nonfinite]
+        args = [self.geometry, particle_arrays(p), face_pairs(f.face_pairs), f.cell_pairs, f.cell_count, f.nonfinite]
         self.launch_splat(P2G[self.grid.dim], args, r)
         for a in range(3):
             self.launch_lines(split_pairs, r.face_lines[a], [f.face_pairs[a], f.mom[a], f.face_mass[a]])
@@ -371,25 +370,23 @@ class Simulation:
             self.launch_lines(gk.momentum_to_velocity, r.face_lines[a],
                               [self.gravity[a], dt, f.mom[a], f.face_mass[a], f.vel[a]])
         self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
-        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
-        self.launch_lines(gk.classify_cells, r.cell_lines,
-                          [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.cell_count,
-                           kernel_args.splat(f), f.types])
+        step = step_params(g, dt, self.two_phase, self.interface)
+        self.launch_lines(gk.classify_cells, r.cell_lines, [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo,
+                                                            self.wall_hi, f.cell_count, splat(f), f.types])
         self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
         for a in g.axes:
             self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [a, f.types, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
-                              [step, a, kernel_args.cell_phases(f), kernel_args.splat(f), f.inv_rho[a]])
+                              [step, a, cell_phases(f), splat(f), f.inv_rho[a]])
         self._run("on_faces", dt)  # moving colliders' face velocities
 
     def _assemble_pressure_system(self, dt: float):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface)
         rate = volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt)
-        fields = [kernel_args.cell_phases(f), kernel_args.face_field(f.inv_rho), kernel_args.face_field(f.vel),
-                  kernel_args.splat(f), kernel_args.pressure_rows(f), f.counters]
+        fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
         slabs = line_slabs(*r.cell_lines, self.parallel.threads)
         self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
@@ -421,7 +418,7 @@ class Simulation:
         if apart:
             self.sealed.center(self, f)
         self.stats.record(info)
-        step = kernel_args.step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
                               [step, a, f.types, f.pressure, f.inv_rho[a], f.vel[a], f.valid[a]])
@@ -455,8 +452,7 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        args = [self.geometry, kernel_args.face_field(f.vel), kernel_args.face_field(f.gas_vel or f.vel),
-                kernel_args.particles(p)]
+        args = [self.geometry, face_field(f.vel), face_field(f.gas_vel or f.vel), particle_arrays(p)]
         if self.parallel.threads == 1:
             self.launch(G2P[self.grid.dim], p.count, [0, dt, gas_J_from_cells, 0, *args, f.max_speed])
         else:
@@ -464,8 +460,7 @@ class Simulation:
             self.speed_parts.zero_()
             cuts = split(0, p.count, self.parallel.threads)
             line = threads.CACHE_LINE_FLOATS
-            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args,
-                                                             self.speed_parts])
+            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args, self.speed_parts])
                                                     for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
             self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
         self.book_outflow()

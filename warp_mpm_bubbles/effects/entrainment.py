@@ -223,7 +223,7 @@ class EntrainmentStage(Stage):
         sim.launch(place_seeds, sim.grid.cells,
                    [seed, lo, hi, base, wp.int64(int(sim.host_state["next_id"][0])), sim.geometry,
                     self._bubble_values(sim), self._seeds, self._first, kernel_args.face_field(f.vel), f.types,
-                    kernel_args.particles(p)])
+                    kernel_args.particle_arrays(p)])
 
     @property
     def pending_total(self):

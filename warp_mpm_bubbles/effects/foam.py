@@ -153,11 +153,11 @@ class FoamStage(Stage):
         self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
         sim.launch(gas_to_foam, p.count,
                    [self.material, self.settings.lifetime, self._seed, sim.geometry, f.types, f.ceiling,
-                    kernel_args.particles(p), p.foam_life])
+                    kernel_args.particle_arrays(p), p.foam_life])
 
     def advance(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         sim.launch(advance_foam, p.count,
                    [dt, self.settings.rise_speed, self._up, sim.geometry, kernel_args.face_field(f.vel), f.liq_volume,
-                    f.types, kernel_args.particles(p), p.foam_life, f.vented_mass])
+                    f.types, kernel_args.particle_arrays(p), p.foam_life, f.vented_mass])
         sim.book_outflow()  # foam blown through an open wall

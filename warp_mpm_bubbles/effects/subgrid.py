@@ -358,7 +358,7 @@ class SubgridBubbleStage(Stage):
 
     def on_momentum(self, sim, dt: float):
         f, p = sim.fields, sim.particles
-        sim.launch(deposit_drag_reaction, p.count, [sim.geometry, kernel_args.particles(p), p.subgrid_impulse,
+        sim.launch(deposit_drag_reaction, p.count, [sim.geometry, kernel_args.particle_arrays(p), p.subgrid_impulse,
                                                     kernel_args.face_field(f.face_mass), kernel_args.face_field(f.vel)])
 
     def after_g2p(self, sim, dt: float):
@@ -367,7 +367,7 @@ class SubgridBubbleStage(Stage):
         around.rho_l, around.mu, around.p_atm = self.rho_l, self.mu, sim.scene.domain.ambient_pressure
         sim.launch(advance_subgrid, p.count,
                    [dt, sim.geometry, around, kernel_args.face_field(f.vel), kernel_args.face_field(f.face_mass),
-                    kernel_args.cell_phases(f), f.ceiling, f.pressure, kernel_args.particles(p), p.subgrid_impulse,
+                    kernel_args.cell_phases(f), f.ceiling, f.pressure, kernel_args.particle_arrays(p), p.subgrid_impulse,
                     f.max_speed])
         sim.book_outflow()  # bubbles carried through an open wall
         if (sim.stats.steps + 1) % self.settings.convert_every == 0:
@@ -394,7 +394,7 @@ class SubgridBubbleStage(Stage):
         rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=sim.device)
         sim.launch(pack_candidates, self._n,
                    [wp.vec3d(*g.origin), wp.float64(g.dx), wp.vec3i(*g.cells), g.dim, self._flag, self._slot,
-                    sim.fields.types, kernel_args.particles(p), rows])
+                    sim.fields.types, kernel_args.particle_arrays(p), rows])
         rows = sim.read_host(rows)
         index, phase = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int32)
         snap = {"x": rows[:, 2:5], "v": rows[:, 5:8], "mass": rows[:, 8], "vol0": rows[:, 9], "J": rows[:, 10],

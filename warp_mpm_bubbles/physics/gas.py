@@ -345,7 +345,7 @@ class GasStage(Stage):
         f, p = sim.fields, sim.particles
         for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
             arr.zero_()
-        sim.launch_splat(p2g_gas, [sim.scene.domain.ambient_pressure, sim.geometry, kernel_args.particles(p),
+        sim.launch_splat(p2g_gas, [sim.scene.domain.ambient_pressure, sim.geometry, kernel_args.particle_arrays(p),
                                    kernel_args.splat(f), f.gas_count])
         self.cavities.after_p2g(sim)
 
@@ -386,15 +386,15 @@ class GasStage(Stage):
         sim.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types,
                                                 kernel_args.face_field(f.gas_vel or f.vel), f.gas_volume, f.target_div,
                                                 f.gas_rate])
-        sim.launch_particles(update_gas_J, [dt, sim.geometry, f.gas_rate, kernel_args.particles(p)])
+        sim.launch_particles(update_gas_J, [dt, sim.geometry, f.gas_rate, kernel_args.particle_arrays(p)])
         self.cavities.update_J(sim, dt)
         ambient = sim.scene.domain.ambient_pressure
         if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
             sim.launch(limit_gas_pressure_spread, p.count,
-                       [ambient, MAX_PRESSURE_SPREAD, sim.geometry, f.gas_volume, f.gas_pv, kernel_args.particles(p)])
+                       [ambient, MAX_PRESSURE_SPREAD, sim.geometry, f.gas_volume, f.gas_pv, kernel_args.particle_arrays(p)])
 
     def after_g2p(self, sim, dt: float):
         f, p = sim.fields, sim.particles
         sim.launch(vent_exposed_gas, p.count,
-                   [sim.geometry, f.types, f.ceiling, kernel_args.particles(p), f.vented_mass])
+                   [sim.geometry, f.types, f.ceiling, kernel_args.particle_arrays(p), f.vented_mass])
 

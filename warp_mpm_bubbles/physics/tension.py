@@ -333,7 +333,7 @@ class TensionStage(Stage):
         films = Films()
         films.cells, films.gas_volume = kernel_args.cell_phases(f), f.gas_volume
         films.level, films.capillary_speed = self.smoothed, self.film_speed
-        particles = kernel_args.particles(p)
+        particles = kernel_args.particle_arrays(p)
         if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
             self.count.zero_()
             self.leaving.zero_()

@@ -105,7 +105,7 @@ def expanding_gas_limit(tmp_path, rate_per_axis):
     """The gas_expansion limit after one step of a bubble at ambient pressure (no pressure part),
     its velocity field then replaced by the uniform expansion u = rate_per_axis * x (so every gas
     cell's divergence is dim * rate_per_axis) and the step's report re-taken from it, as the step's
-    end does (Simulation._end_step)."""
+    end does (Simulation._phase_read_back)."""
     import numpy as np
 
     sim = bubble_tank(tmp_path)

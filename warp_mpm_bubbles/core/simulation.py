@@ -11,7 +11,9 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid; docs/design.
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
     (after)   the optional stages that move or convert particles
 
-Each optional stage joins at named hook points (`Stage`): the step below reads as that list.
+Each optional stage joins at named hook points (`Stage`). The phases, core work and hook points alike,
+are declared once, in core/step.py's STEP: `step` runs that list, and `step_graph` the same list cut
+into CUDA graphs.
 The time step is the smallest of the CFL limit and the stages' limits, and lands exactly on frame
 times. Inside a step the host reads only scalars: the grid box (core/active_box.py), the fluid box and
 the CG's exit flag every few iterations (core/pressure.py), the solve's cell counts, one read-back at the
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,7 +38,8 @@ from .host_reads import HostReads
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
-from .stage import HOOKS, Stage, build_stages
+from .stage import Stage, build_stages
+from .step import GRID_WRITING_HOOKS, HOOKS, PHASES, Run, step_plan
 from .state import GridFields, ParticleState
 from .timing import StageTimer
 from . import readout, sealed_regions, threads
@@ -52,14 +56,6 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 # bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
 SORT_EVERY = 0
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
-# Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
-TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
-# Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
-# only per-step argument (colliders pass the time: not these; unknown stages: not these).
-GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
-# Hooks at which stages write grid arrays: unless every stage there is box-aware (Stage.grid_box), the grid
-# stages cover the whole grid, since its kernels may write anywhere.
-GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
 @dataclass
@@ -123,11 +119,12 @@ class Simulation:
         self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
         self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
-        self._capturing = False
         self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
         self.stages: list[Stage] = build_stages(self, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
-        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
+        self._plans = {graph: step_plan(self._hooks, graph) for graph in (False, True)}  # core/step.py
+        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin;
+        # unless every stage at a grid-writing hook is box-aware, the whole grid (its kernels may write anywhere)
         self.region = ActiveRegion(g, self.device, parallel=self.parallel,
                                    enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
@@ -221,51 +218,64 @@ class Simulation:
                                           float(np.linalg.norm(np.asarray(velocities), axis=1).max()))
         return added
 
-    def _run(self, hook: str, dt: float):
-        for s in self._hooks[hook]:
-            if hook in TIMED_HOOKS and not self._capturing:  # the timer synchronizes: not in a capture
-                with self.timer(s.timer_name):
-                    getattr(s, hook)(self, dt)
-            else:
-                getattr(s, hook)(self, dt)
-
     # ------------------------------------------------------------------------------ the step
     def step(self, dt: float):
-        self._run("begin_step", dt)  # emitters
-        self._splat_and_classify(dt)
-        if self.voids.seeded:  # trapped air seeded in this step's cells: splat again, so this solve sees its gas
-            self._splat_and_classify(dt, again=True)
-        self._run("force", dt)  # viscosity, surface tension
-        with self.timer("grid"):
-            self._assemble_pressure_system(dt)
-        with self.timer("pressure"):
-            self._solve_pressure(dt)
-        with self.timer("extend"):
-            self._run("before_extend", dt)  # the gas's own field
-            self.extend(self.fields.vel, self.fields.valid)
-        with self.timer("g2p"):
-            self._run("before_g2p", dt)  # gas volume change
-            self._grid_to_particles(dt)
-        self._run("after_g2p", dt)  # films, entrainment, sub-grid bubbles, foam, venting
-        self._run("end_step", dt)  # colliders push particles out
-        self._end_step(dt)
+        """One time step: the phases of core/step.py's STEP, in order (docs/design.md, "The step")."""
+        self._run_plan(self._plans[False], dt)
 
-    def _splat_and_classify(self, dt: float, again: bool = False):
-        """p2g, the grid velocities and the cell types (the void pass last). again: once more in the
-        same step, after the void pass seeded trapped air (core/voids.py): the step then goes on as
-        if the gas had been there from its start, so the solve sees the pocket as gas, not EMPTY at
-        p = 0 inside the liquid. Each pass writes what it writes from scratch, on a box holding the
-        first's (the same particles and more, united with the previous step's)."""
-        with self.timer("p2g"):
-            if not again:
-                self._sort_if_due()
-            self.region.update(self.particles, again)  # one read: the box the grid stages cover
-            self.particles_to_grid(self.region)
-            self._run("after_p2g", dt)  # gas sums
-        with self.timer("grid"):
-            self._grid_velocity_and_cells(dt)
+    def step_plan(self, graph: bool = False) -> list[Run]:
+        """The runs of phases step (graph=False) or step_graph (graph=True) makes of this scene's step."""
+        return self._plans[graph]
 
-    def _end_step(self, dt: float):
+    def _run_plan(self, runs: list[Run], dt: float, again: bool = False):
+        """Run each phase in turn, those sharing a timer line under one timer (it synchronizes on a
+        GPU); a hook without one times each stage on its own line. A captured run is one CUDA graph."""
+        with ExitStack() as timed:
+            line = None  # the timer line open now
+            for i, run in enumerate(runs):
+                first = PHASES[run.phases[0]]
+                name = f"graph: {run.phases[0]} .. {run.phases[-1]}" if run.captured else first.timer
+                if name != line:
+                    timed.close()
+                    if name is not None:
+                        timed.enter_context(self.timer(name))
+                    line = name
+                if run.captured:
+                    self._replay(run, dt)
+                elif first.repeat_from:
+                    if self.voids.seeded:  # trapped air seeded in this step's cells: this solve must see its gas
+                        timed.close()
+                        line = None
+                        start = next(j for j, r in enumerate(runs) if first.repeat_from in r.phases)
+                        self._run_plan(runs[start:i], dt, again=True)
+                else:
+                    self._run_phase(first, dt, again, timed=name is None)
+
+    def _run_phase(self, phase, dt: float, again: bool, timed: bool = False):
+        if not phase.hook:
+            getattr(self, f"_phase_{phase.name}")(dt, again)
+            return
+        for s in self._hooks[phase.name]:
+            if timed:
+                with self.timer(s.timer_name):
+                    getattr(s, phase.name)(self, dt)
+            else:
+                getattr(s, phase.name)(self, dt)
+
+    def _phase_sort(self, dt: float, again: bool):
+        if not again:
+            self._sort_if_due()
+
+    def _phase_region(self, dt: float, again: bool):
+        """The box the grid phases cover, read on the host; again: the same step's, after the void pass
+        seeded trapped air (core/voids.py). The second pass writes what it writes from scratch, on a box
+        holding the first's (the same particles and more, united with the previous step's)."""
+        self.region.update(self.particles, again)
+
+    def _phase_p2g(self, dt: float, again: bool):
+        self.particles_to_grid(self.region)
+
+    def _phase_read_back(self, dt: float, again: bool):
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)
         # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
         for write in self.report_writers:
@@ -278,48 +288,30 @@ class Simulation:
         self.stats.dt_history.append(dt)
 
     def step_graph(self, dt: float):
-        """step(dt), with its two device-only stretches (p2g .. the pressure system, and extend ..
-        g2p) captured as CUDA graphs (wp.ScopedCapture) and replayed while nothing they bake in
-        changes; the solve, the host stages and the read-back run as in step(). On the CPU, or with
-        a stage outside GRAPH_STAGES, it is step(dt). UNTESTED on a GPU (none where it was written;
-        docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
-        if not self.device.is_cuda or any(s.name not in GRAPH_STAGES for s in self.stages):
+        """step(dt) with each capturable stretch of the step (step_plan(graph=True)) captured as a
+        CUDA graph (wp.ScopedCapture) and replayed while nothing it bakes in changes; the phases that
+        read the host run between them as in step(). On the CPU it is step(dt). UNTESTED on a GPU
+        (docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
+        if not self.device.is_cuda:
             return self.step(dt)
-        f = self.fields
-        self.region.whole_grid()  # its box is read on the host: not inside a graph
-        self._run("begin_step", dt)
-        self._sort_if_due()  # moves the particle arrays in place: outside the graphs
-        with self.timer("graph: p2g .. system"):
-            self._replay("pre", dt, lambda: (self.particles_to_grid(), self._run("after_p2g", dt),
-                                             self._grid_velocity_and_cells(dt), self._run("force", dt),
-                                             self._assemble_pressure_system(dt)))
-        with self.timer("pressure"):
-            self._solve_pressure(dt)
-        with self.timer("graph: extend .. g2p"):
-            self._replay("post", dt, lambda: (self._run("before_extend", dt), self.extend(f.vel, f.valid),
-                                              self._run("before_g2p", dt), self._grid_to_particles(dt)))
-        self._run("after_g2p", dt)
-        self._run("end_step", dt)
-        self._end_step(dt)
+        self._run_plan(self._plans[True], dt)
 
-    def _replay(self, name: str, dt: float, stretch):
-        """Capture `stretch` once per (dt, particle arrays, face arrays) and launch the graph; the
+    def _replay(self, run: Run, dt: float):
+        """Capture `run` once per (dt, particle arrays, box, face arrays) and launch the graph; the
         face lists the stretch swaps (viscosity, extend) are set as the capture left them."""
         f, p = self.fields, self.particles
         lists = [a for a in (f.vel, f.vel_tmp, f.valid, f.valid_tmp, f.gas_vel, f.gas_valid) if a is not None]
-        key = (name, dt, p.count, p.x.ptr, self.region.box, tuple(a.ptr for arrays in lists for a in arrays))
+        key = (run.phases, dt, p.count, p.x.ptr, self.region.box, tuple(a.ptr for arrays in lists for a in arrays))
         if key not in self._graphs:
-            if len(self._graphs) >= 8:  # dt changes: keep only recent graphs
+            if len(self._graphs) >= 16:  # dt changes: keep only recent graphs
                 self._graphs.clear()
             before = Counter(self.launches)
-            self._capturing = True
-            try:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    stretch()
-            finally:
-                self._capturing = False
+            with wp.ScopedCapture(device=self.device) as capture:
+                for name in run.phases:
+                    self._run_phase(PHASES[name], dt, again=False)  # untimed: the timer synchronizes
             self._graphs[key] = (capture.graph, self.launches - before, [list(a) for a in lists])
-            self.launches = before
+            self.launches.clear()
+            self.launches.update(before)
         graph, launches, after = self._graphs[key]
         wp.capture_launch(graph)
         self.launches.update(launches)
@@ -364,24 +356,29 @@ class Simulation:
         cuts[0], cuts[-1] = 0, self.grid.face_shape(0)[0]
         self._launch_parts(kernel, [(self.particles.count, [*inputs, a, b]) for a, b in zip(cuts, cuts[1:])])
 
-    def _grid_velocity_and_cells(self, dt: float):
+    def _phase_momentum(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
             self.launch_lines(gk.momentum_to_velocity, r.face_lines[a], [f.mom[a], f.face_mass[a], self.gravity[a], dt, f.vel[a]])
-        self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
+
+    def _phase_classify(self, dt: float, again: bool):
+        g, f, r = self.grid, self.fields, self.region
         self.launch_lines(gk.classify_cells, r.cell_lines,
                           [f.cell_count, f.liq_volume, f.gas_volume, self.two_phase, 1.0 / g.dx**3, wp.vec3i(*g.ghost),
                            wp.vec3i(*g.interior), self.wall_lo, self.wall_hi, f.types])
-        self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
+
+    def _phase_voids(self, dt: float, again: bool):
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
+
+    def _phase_face_density(self, dt: float, again: bool):
+        g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
             self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [f.types, a, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
                               [f.types, f.phase_cells, f.liq_mass, f.liq_volume, f.gas_mass, f.gas_volume,
                                self.two_phase, self.interface, a, 1.0 / g.dx**3, f.inv_rho[a]])
-        self._run("on_faces", dt)  # moving colliders' face velocities
 
-    def _assemble_pressure_system(self, dt: float):
+    def _phase_assemble(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
         inputs = [f.types, f.phase_cells, *f.inv_rho, *f.vel, f.liq_volume, f.gas_volume, f.gas_pv, f.gas_kv,
@@ -392,7 +389,7 @@ class Simulation:
         self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
                                                           for q, (slab, d) in enumerate(line_slabs(*r.cell_lines, self.parallel.threads))])
 
-    def _solve_pressure(self, dt: float):
+    def _phase_solve(self, dt: float, again: bool):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
         if self.sealed:
             self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
@@ -444,6 +441,12 @@ class Simulation:
             self.launch_lines(gk.enforce_walls, r.face_lines[a], [f.types, a, vel[a]])
         for s in self._hooks["on_extended"]:
             s.on_extended(self, vel)
+
+    def _phase_extend(self, dt: float, again: bool):
+        self.extend(self.fields.vel, self.fields.valid)
+
+    def _phase_g2p(self, dt: float, again: bool):
+        self._grid_to_particles(dt)
 
     def _grid_to_particles(self, dt: float):
         f, p = self.fields, self.particles

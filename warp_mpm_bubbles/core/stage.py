@@ -13,7 +13,8 @@ A stage is one class in one module that owns all of its physics (docs/design.md,
   use: "capillary", "viscous"); `Simulation.stable_dt` is the minimum of them all.
 - ``incoming_speed(t0, t1)``: a speed it brings before any particle has it (emitters, moving
   colliders), added to the CFL limit.
-- hooks at named points of the step, in this order (each a no-op unless overridden)::
+- hooks at named points of the step (core/step.py's STEP, which tests/test_step.py holds this
+  table to), in this order (each a no-op unless overridden)::
 
       begin_step      before p2g                       emitters add particles
       after_p2g       particle sums are on the grid    gas: mass, volume, pressure per cell
@@ -22,13 +23,16 @@ A stage is one class in one module that owns all of its physics (docs/design.md,
       on_faces        face densities are set           colliders' face velocities
       force           on u* before the solve           viscosity, surface tension
       before_extend   u is projected                   gas: its own field (sharp interface)
-      on_extended     a field was extrapolated         colliders' face velocities again
+      on_extended     a face field was extrapolated    colliders' face velocities again
       before_g2p      the grid is final                gas: volume change of its cells
       after_g2p       particles have moved             films, entrainment, bubbles, foam, venting
       end_step        last                             colliders push particles out
 
 - ``timer``: the line its ``begin_step``, ``force``, ``after_g2p`` and ``end_step`` time goes to
   in the run summary (its other hooks are timed with the core stage they sit in).
+- ``graph_safe``: its hooks at capturable points of the step launch device work only, with dt
+  their only per-step value, so `Simulation.step_graph` may capture them in a CUDA graph (a stage
+  that passes the time, or reads the host, says False and runs between the graphs).
 - what it checkpoints: per-particle arrays made with `ParticleState.add_field` and entries of
   `Simulation.host_state` are saved and restored with everything else.
 
@@ -45,6 +49,8 @@ import importlib
 import math
 from typing import ClassVar
 
+from .step import HOOKS
+
 # The built-in stages, by the effect name a scene asks for: "module:Class", imported on first use.
 BUILTIN_STAGES = {
     "gas": "warp_mpm_bubbles.physics.gas:GasStage",
@@ -59,8 +65,6 @@ BUILTIN_STAGES = {
 # Order at every hook point (see the module docstring); stages registered from outside come after.
 STEP_ORDER = ("emitters", "colliders", "viscosity", "surface_tension", "entrainment", "subgrid_bubbles", "foam",
               "gas")
-HOOKS = ("begin_step", "after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend",
-         "on_extended", "before_g2p", "after_g2p", "end_step")
 
 _registered: dict[str, type] = {}
 
@@ -76,6 +80,7 @@ class Stage:
     # offset `sim.region.lo`) and leave every cell outside it in the empty state (core/active_box.py).
     # A scene whose grid-hook stages all say so keeps the box; any other stage there: the whole grid.
     grid_box: ClassVar[bool] = False
+    graph_safe: ClassVar[bool] = False  # may be captured in step_graph's CUDA graphs (module docstring)
 
     def __init__(self, sim, settings=None):
         self.settings = settings

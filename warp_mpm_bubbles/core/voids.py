@@ -378,7 +378,7 @@ class VoidPass:
 
     def apply(self, dt: float):
         """The pass (module docstring). Called a second time in a step after it seeded trapped air
-        (Simulation._splat_and_classify): then the pocket's cells hold gas particles and are gas
+        (the resplat phase, core/step.py): then the pocket's cells hold gas particles and are gas
         cells, and last_voids keeps the larger count of the two passes (the voids found this step)."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
         again = self._step == sim.stats.steps

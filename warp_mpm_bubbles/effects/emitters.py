@@ -226,6 +226,7 @@ class EmitterStage(Stage):
     before any particle has it."""
 
     name = "emitters"
+    graph_safe = True  # its one hook, begin_step, runs outside the graphs
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)

@@ -191,6 +191,7 @@ class EntrainmentStage(Stage):
 
     name = "entrainment"
     Settings = Entrainment
+    graph_safe = True
 
     def __init__(self, sim, settings):
         super().__init__(sim, settings)

@@ -159,6 +159,7 @@ class FoamStage(Stage):
 
     name = "foam"
     Settings = Foam
+    graph_safe = True
 
     def __init__(self, sim, settings):
         super().__init__(sim, settings)

@@ -364,6 +364,7 @@ class SubgridBubbleStage(Stage):
 
     name = "subgrid_bubbles"
     Settings = SubgridBubbles
+    graph_safe = True
 
     def __init__(self, sim, settings):
         super().__init__(sim, settings)

@@ -276,6 +276,7 @@ class GasStage(Stage):
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
     grid_box = True  # its grid kernels cover sim.region; outside it the gas arrays hold no gas
+    graph_safe = True
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)

@@ -303,6 +303,7 @@ class TensionStage(Stage):
     timer = "tension"
     limit = "capillary"
     grid_box = True  # the force covers sim.region: outside it psi = -1, kappa = 0 and no face is active
+    graph_safe = True
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings)

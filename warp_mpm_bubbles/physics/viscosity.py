@@ -23,6 +23,7 @@ class ViscosityStage(Stage):
     name = "viscosity"
     limit = "viscous"
     Settings = Viscosity
+    graph_safe = True
 
     def __init__(self, sim, settings=None):
         super().__init__(sim, settings or Viscosity())

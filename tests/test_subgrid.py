@@ -2,6 +2,7 @@
 resolved gas, and entrainment (issue #4, item 3), on Warp's CPU device."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -87,7 +88,7 @@ def test_a_bubble_rises_at_its_drag_law_terminal_speed_3d(tmp_path):
     # the liquid around it upward (two-way), which adds to its rise: measured +0.09% at 16^3. Bound 0.5%.
     sim = Simulation(tank(tmp_path, dim=3, cells=16, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
     r0 = 5.0e-4
-    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     window = t >= 0.1  # the drag relaxes in m_eff / k ~ 6 ms; the co-flow takes a little longer
     speed = np.polyfit(t[window], y[window], 1)[0]
@@ -106,7 +107,7 @@ def test_large_steps_stay_stable_and_the_drag_uses_the_liquids_viscosity(tmp_pat
     scene = tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}, cfl=2.0, viscosity=2.0e-3)
     sim = Simulation(scene, "cpu")
     r0 = 5.0e-4
-    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     assert max(sim.stats.dt_history) > 0.015
     window = t >= 0.1
@@ -128,7 +129,7 @@ def test_a_bubble_where_the_grid_holds_next_to_no_fluid_drags_it_no_faster_than_
     # bubble keeps the rest of its momentum, and the fluid's faces gain J exactly.
     sim = Simulation(tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles(convert_every=10**6)}), "cpu")
     stage, f, p = sim.stage("subgrid_bubbles"), sim.fields, sim.particles
-    i = stage.add_bubbles(sim, np.array([[0.05, 0.05]]), np.array([0.5e-3]), np.zeros((1, 2)), AIR).start
+    i = stage.add_bubbles(sim.ctx, np.array([[0.05, 0.05]]), np.array([0.5e-3]), np.zeros((1, 2)), AIR).start
     dt = 1.0e-5
     sim.step(dt)  # the grid's types, phases and pressure: the bubble sits in the water
     m0 = 5.0e-14
@@ -161,7 +162,7 @@ def test_gathered_subgrid_bubbles_become_resolved_gas_with_their_mass(tmp_path):
     dx = sim.grid.dx
     rng = np.random.default_rng(1)
     pos = np.array([0.05, 0.04]) + rng.uniform(-dx, dx, (40, 2))
-    sub = sim.stage("subgrid_bubbles").add_bubbles(sim, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
+    sub = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
     before, _ = budget_parts(sim)
     n_before = sim.num_particles
     sub_ids = sim.particles.numpy("ids")[sub].copy()  # the step sorts the particles by cell: follow ids
@@ -303,3 +304,25 @@ def test_resume_from_a_checkpoint_repeats_the_run(tmp_path):
     assert b.num_particles == n and b.gas_budget() == a.gas_budget()
     for name in ("x", "v", "phase", "active", "subgrid_impulse", "foam_life"):
         assert np.array_equal(a.particles.numpy(name), b.particles.numpy(name)), name
+
+
+def test_the_output_gives_sub_grid_bubbles_their_own_radius_and_the_summary_their_gas(tmp_path):
+    # The stage reports its own output (Stage.output_radii, gas_held): io/ names no effect. Bubbles
+    # of two sizes among the liquid: each written with the radius of its own volume, the liquid with
+    # the output radius; the summary's gas line gives the bubbles' share.
+    from warp_mpm_bubbles.core.grid import sphere_radius
+    from warp_mpm_bubbles.io.runner import RunResult, output_radii, summary
+
+    sim = Simulation(tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
+    plain = Simulation(tank(tmp_path), "cpu")
+    radii = np.array([4.0e-4, 7.0e-4])
+    sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.03, 0.02], [0.06, 0.04]]), radii, np.zeros((2, 2)), AIR)
+    p = sim.particles_numpy()
+    written = output_radii(sim, p, 0.001)
+    bubbles = p["phase"] == PHASE_SUBGRID
+    assert bubbles.sum() == 2 and np.all(written[~bubbles] == 0.001)
+    np.testing.assert_allclose(np.sort(written[bubbles]), radii, rtol=1e-6)
+    np.testing.assert_array_equal(written[bubbles], sphere_radius(p["volume"][bubbles]))
+    assert output_radii(plain, plain.particles_numpy(), 0.001) is None  # no stage owns a size
+    text = summary(RunResult(sim, str(tmp_path / "s.usdc"), 1, 1.0))
+    assert re.search(r"gas: .*, 100\.0% in sub-grid bubbles", text), text

@@ -38,6 +38,8 @@ from .host_reads import HostReads
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
+from .context import StepContext
+from .launch import Launcher
 from .stage import Stage, build_stages
 from .step import GRID_WRITING_HOOKS, HOOKS, PHASES, Run, step_plan
 from .state import GridFields, ParticleState
@@ -94,12 +96,8 @@ class Simulation:
         self.scene = scene.validate()
         self.effects = self.scene.effect_names  # the optional stages that run; no others do
         self.device = wp.get_device(device)
-        self.launches: Counter[str] = Counter()  # kernel launches by name: proof of what ran
         self.grid = g = MacGrid.from_domain(scene.domain)
         self.timer = StageTimer(self.device)
-        self.stats = SolverStats()
-        self.time = 0.0
-        self.frame = 0
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
         self.sort_every = SORT_EVERY
         self._sorted_at = 0  # the step of the last sort by cell
@@ -111,16 +109,19 @@ class Simulation:
         self.fields = GridFields(g, self.device, parts=self.parallel.threads)
         # g2p parts' fastest speeds, a cache line apart: each part writes its slot for every particle
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
-        self._loaded: set = set()  # kernels launched once already (_launch_parts)
+        # Every launch goes through the launcher (core/launch.py); the core uses its helpers by name.
+        self.launcher = launcher = Launcher(self.device, self.parallel, g, self.particles)
+        self.launches = launcher.launches  # kernel launches by name: proof of what ran
+        self.launch, self.launch_lines, self.launch_particles = launcher.launch, launcher.launch_lines, launcher.launch_particles
+        self.launch_box, self.launch_splat, self.launch_parts = launcher.launch_box, launcher.launch_splat, launcher.launch_parts
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
         # Fluid regions no free surface reaches, one apart from another: only solids inside the domain (the
         # colliders) can seal one off; without them the fluid is one region or reaches the air.
         self.sealed = sealed_regions.SealedRegions(g.cells, self.device) if scene.colliders else None
-        self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
-        self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
+        self.ctx = self._context()  # what the stages see (core/context.py)
         self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
-        self.stages: list[Stage] = build_stages(self, self.effects)
+        self.stages: list[Stage] = build_stages(self.ctx, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
         self._plans = {graph: step_plan(self._hooks, graph) for graph in (False, True)}  # core/step.py
         # the grid stages' launch box (core/active_box.py): the particles' cells and a margin;
@@ -128,6 +129,26 @@ class Simulation:
         self.region = ActiveRegion(g, self.device, parallel=self.parallel,
                                    enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
+
+    def _context(self) -> StepContext:
+        return StepContext(
+            scene=self.scene, device=self.device, grid=self.grid, fields=self.fields, particles=self.particles,
+            geometry=self.geometry, launcher=self.launcher, stats=SolverStats(), gravity=self.gravity, up=self.up,
+            two_phase=self.two_phase, interface=self.interface, has_gas=self.has_gas, open_walls=self.open_walls,
+            effects=self.effects, host_state=self.host_state, read_host=self.read_host,
+            add_particles=self.add_particles, stage=self.stage, extend=self.extend, book_outflow=self.book_outflow,
+            dt_limits=self.dt_limits)
+
+    def _set_region(self, region: ActiveRegion):
+        self.ctx.region = self.launcher.region = region
+
+    # The clock, the counts and the box live in the context, which the stages read them from.
+    stats = property(lambda self: self.ctx.stats, lambda self, st: setattr(self.ctx, "stats", st))
+    region = property(lambda self: self.ctx.region, _set_region)
+    time = property(lambda self: self.ctx.time, lambda self, t: setattr(self.ctx, "time", t))
+    frame = property(lambda self: self.ctx.frame, lambda self, n: setattr(self.ctx, "frame", n))
+    report_writers = property(lambda self: self.ctx.report_writers)  # stages' f(ctx) writing into the read-back
+    report_readers = property(lambda self: self.ctx.report_readers)  # stages' f(ctx, report) after it
 
     def _init_geometry(self):
         g, scene = self.grid, self.scene
@@ -151,7 +172,7 @@ class Simulation:
         self.seeded = len(seeds["positions"])  # what the shapes seed, before colliders remove any
         colliders = self.stage("colliders")
         if colliders:  # no particle starts inside a solid
-            keep = ~colliders.inside(self, seeds["positions"])
+            keep = ~colliders.inside(self.ctx, seeds["positions"])
             seeds = {name: values[keep] for name, values in seeds.items()}
         self.add_particles(seeds["positions"], seeds["velocities"], seeds["material"], seeds["volume"],
                            seeds["pressure"])
@@ -177,11 +198,6 @@ class Simulation:
     def count_host_reads(self) -> HostReads:
         """``with sim.count_host_reads() as reads: sim.step(dt)``: the host reads inside, by module."""
         return HostReads()
-
-    def launch(self, kernel, dim, inputs):
-        """Every kernel launch goes through here, so `launches` proves what ran."""
-        self.launches[kernel.key] += 1
-        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
 
     def add_particles(self, positions, velocities, material, volume, gauge_pressure=None) -> slice:
         """Append particles (numpy arrays; material: indices into scene.materials; volume: current,
@@ -221,6 +237,7 @@ class Simulation:
     # ------------------------------------------------------------------------------ the step
     def step(self, dt: float):
         """One time step: the phases of core/step.py's STEP, in order (docs/design.md, "The step")."""
+        self.ctx.dt = dt
         self._run_plan(self._plans[False], dt)
 
     def step_plan(self, graph: bool = False) -> list[Run]:
@@ -258,9 +275,9 @@ class Simulation:
         for s in self._hooks[phase.name]:
             if timed:
                 with self.timer(s.timer_name):
-                    getattr(s, phase.name)(self, dt)
+                    getattr(s, phase.name)(self.ctx, dt)
             else:
-                getattr(s, phase.name)(self, dt)
+                getattr(s, phase.name)(self.ctx, dt)
 
     def _phase_sort(self, dt: float, again: bool):
         if not again:
@@ -279,11 +296,11 @@ class Simulation:
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)
         # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
         for write in self.report_writers:
-            write(self)
+            write(self.ctx)
         report = self.read_host(self.fields.max_speed)
         self.max_particle_speed = float(report[0])
         for read in self.report_readers:
-            read(self, report)
+            read(self.ctx, report)
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 
@@ -294,6 +311,7 @@ class Simulation:
         (docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
         if not self.device.is_cuda:
             return self.step(dt)
+        self.ctx.dt = dt
         self._run_plan(self._plans[True], dt)
 
     def _replay(self, run: Run, dt: float):
@@ -345,17 +363,6 @@ class Simulation:
             self.launch_lines(split_pairs, r.face_lines[a], [f.face_pairs[a], f.mom[a], f.face_mass[a]])
         self.launch_lines(split_pairs, r.cell_lines, [f.cell_pairs, f.liq_mass, f.liq_volume])
 
-    def launch_splat(self, kernel, inputs, region=None):
-        """Launch a particle-to-grid kernel over every particle, its last two arguments the slab
-        [x_lo, x_hi) of grid nodes along x it writes: one slab a thread on the CPU, cut evenly across
-        the region's nodes (faces: one more than cells), the first and last reaching the arrays' ends
-        so every node belongs to some part. Each part visits the particles in index order, so every
-        node sums them in that order whatever the split (core/threads.py)."""
-        r = region or self.region
-        cuts = split(r.box[0][0], r.box[1][0] + 1, self.parallel.threads)
-        cuts[0], cuts[-1] = 0, self.grid.face_shape(0)[0]
-        self._launch_parts(kernel, [(self.particles.count, [*inputs, a, b]) for a, b in zip(cuts, cuts[1:])])
-
     def _phase_momentum(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
@@ -386,7 +393,7 @@ class Simulation:
                   volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt),
                   f.diag, f.extra_diag, f.rhs, f.target_div, f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
-        self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
+        self.launch_parts(gk.pressure_diagonal_and_rhs, [(d, [*inputs, q * threads.CACHE_LINE_FLOATS, slab])
                                                           for q, (slab, d) in enumerate(line_slabs(*r.cell_lines, self.parallel.threads))])
 
     def _phase_solve(self, dt: float, again: bool):
@@ -440,7 +447,7 @@ class Simulation:
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
             self.launch_lines(gk.enforce_walls, r.face_lines[a], [f.types, a, vel[a]])
         for s in self._hooks["on_extended"]:
-            s.on_extended(self, vel)
+            s.on_extended(self.ctx, vel)
 
     def _phase_extend(self, dt: float, again: bool):
         self.extend(self.fields.vel, self.fields.valid)
@@ -462,7 +469,7 @@ class Simulation:
             self.speed_parts.zero_()
             cuts = split(0, p.count, self.parallel.threads)
             line = threads.CACHE_LINE_FLOATS
-            self._launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
+            self.launch_parts(G2P[self.grid.dim], [(b - a, [*args, a, self.speed_parts, q * line])
                                                     for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
             self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
         self.book_outflow()
@@ -474,48 +481,6 @@ class Simulation:
         if self.open_walls and self.particles.count:
             p = self.particles
             self.launch(book_outflow, p.count, [p.active, p.phase, p.mass, self.fields.outflow_mass])
-
-    def launch_lines(self, kernel, lines, inputs):
-        """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
-        writes only what it walks: lines = (Lines, dims), the Lines struct its last argument. A box of
-        SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
-        slabs = line_slabs(*lines, self.parallel.threads)
-        if len(slabs) == 1:
-            self.launch(kernel, slabs[0][1], [*inputs, slabs[0][0]])
-        else:
-            self._launch_parts(kernel, [(d, [*inputs, slab]) for slab, d in slabs])
-
-    def launch_particles(self, kernel, inputs):
-        """Launch a per-particle kernel whose first argument is the index of its first particle and
-        which writes only its own particles' values: in ranges at once on the CPU's threads (no
-        particle's result depends on the split), one launch for few particles or one thread."""
-        n = self.particles.count
-        if n == 0:
-            return
-        cuts = split(0, n, self.parallel.threads if n >= threads.SPLIT_PARTICLES else 1)
-        self._launch_parts(kernel, [(b - a, [a, *inputs]) for a, b in zip(cuts, cuts[1:]) if b > a])
-
-    def launch_box(self, kernel, lo, dims, inputs):
-        """Launch a kernel over the box of `dims` cells or faces from `lo` (its last argument: the offset
-        of its thread index) that writes only what it is launched on: in slabs along x at once on the
-        CPU's threads when the box holds SPLIT_CELLS or more."""
-        cuts = split(0, dims[0], self.parallel.threads if math.prod(dims) >= threads.SPLIT_CELLS else 1)
-        self._launch_parts(kernel, [((b - a, *dims[1:]), [*inputs, wp.vec3i(lo[0] + a, lo[1], lo[2])])
-                                    for a, b in zip(cuts, cuts[1:]) if b > a])
-
-    def _launch_parts(self, kernel, parts):
-        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the
-        first time one after the other: the first launch compiles or loads the kernel's module, which
-        must happen once, on one thread)."""
-        self.launches[kernel.key] += len(parts)
-        calls = [lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
-                 for d, inputs in parts]
-        if kernel in self._loaded:
-            self.parallel.run(calls)
-        elif calls:  # (no part: an empty box, nothing loaded yet)
-            for call in calls:
-                call()
-            self._loaded.add(kernel)
 
     # ---------------------------------------------------------------------------- time steps
     def dt_limits(self) -> dict[str, float]:
@@ -530,7 +495,7 @@ class Simulation:
         speed += math.sqrt(g_mag * self.grid.dx)
         limits = {"cfl": s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf}
         for st in self.stages:
-            limit = st.dt_limit(self)
+            limit = st.dt_limit(self.ctx)
             if limit < math.inf:
                 limits[st.limit or st.name] = limit
         if s.max_dt is not None:

@@ -1,7 +1,7 @@
 """Emitters: a pouring stream of liquid and an air stone releasing gas bubbles.
 
 Both work on the host at the start of a step and append particles (Simulation.add_particles).
-Their progress (stream length owed, bubbles owed, how many emitted) lives in sim.host_state, so a
+Their progress (stream length owed, bubbles owed, how many emitted) lives in ctx.host_state, so a
 resumed run emits exactly what an uninterrupted one does; every random draw is seeded by
 (scene seed, emitter, count), never by a global generator.
 
@@ -228,9 +228,9 @@ class EmitterStage(Stage):
     name = "emitters"
     graph_safe = True  # its one hook, begin_step, runs outside the graphs
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        scene = sim.scene
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings)
+        scene = ctx.scene
         self.dim = scene.dim
         self.dx = scene.domain.dx
         self.spacing = self.dx / scene.solver.particles_per_cell ** (1.0 / self.dim)
@@ -238,10 +238,10 @@ class EmitterStage(Stage):
         self.materials = list(scene.materials)
         self.emitters = scene.emitters
         # per emitter: [amount owed (stream length, m / bubbles), number emitted so far]
-        sim.host_state["emitters"] = np.zeros((len(self.emitters), 2))
+        ctx.host_state["emitters"] = np.zeros((len(self.emitters), 2))
         # per emitter: [volume its stream owed (layers x layer volume), volume delivered] (m^3; 2D: the
         # one-cell slab). A blocked nozzle delivers less (_deliver): the summary says so.
-        sim.host_state["inflow_volume"] = np.zeros((len(self.emitters), 2))
+        ctx.host_state["inflow_volume"] = np.zeros((len(self.emitters), 2))
         # The room a domain the liquid cannot leave has for liquid and gas (m^3; 2D: the one-cell
         # slab), colliders where they stand at t = 0; None where the liquid drains (open walls).
         self.room = None
@@ -258,9 +258,15 @@ class EmitterStage(Stage):
     def incoming_speed(self, t0: float, t1: float) -> float:
         return max(e.speed_between(t0, t1) for e in self.emitters)
 
-    def begin_step(self, sim, dt: float):
-        t = sim.time
-        state = sim.host_state["emitters"]
+    def summary_lines(self, ctx) -> list[str]:
+        """A line for each stream that delivered less than it owed (_deliver refused crowded cells)."""
+        return [f"  [emitters.{i}] delivered {100 * delivered / owed:.0f}% of its stream: its nozzle's cells "
+                f"were full of liquid (submerged, or the stream blocked)"
+                for i, (owed, delivered) in enumerate(ctx.host_state["inflow_volume"]) if delivered < owed * (1.0 - 1e-9)]
+
+    def begin_step(self, ctx, dt: float):
+        t = ctx.time
+        state = ctx.host_state["emitters"]
         bubbles, layers = [], []  # this step's, placed together (_release, _deliver)
         for i, e in enumerate(self.emitters):
             stop = math.inf if e.stop is None else e.stop
@@ -281,11 +287,11 @@ class EmitterStage(Stage):
                     bubbles.append(self._bubble(i, e, int(state[i, 1])))
                     state[i, 1] += 1
         if layers:
-            self._deliver(sim, layers)
+            self._deliver(ctx, layers)
         if bubbles:
-            self._release(sim, bubbles)
+            self._release(ctx, bubbles)
 
-    def _deliver(self, sim, layers: list[tuple]):
+    def _deliver(self, ctx, layers: list[tuple]):
         """Add this step's stream layers, each particle only where its cell is not crowded already:
         a nozzle under water or aimed at a wall delivers what the liquid lets in. Laid into cells
         already full, the new particles crowded the liquid (a run's liquid in 0.84-0.89 of its rest
@@ -293,27 +299,27 @@ class EmitterStage(Stage):
         fill is splatted from the particles as they are now (not the last step's fields.liq_volume,
         which a resumed run has not yet made), one read of the layers' cells per step that lays any
         (docs/host_syncs.md)."""
-        positions = np.concatenate([self._inside(sim, layer[1]) for layer in layers])
-        cells = np.floor((positions - np.asarray(sim.grid.origin)) / self.dx).astype(np.int64)
+        positions = np.concatenate([self._inside(ctx, layer[1]) for layer in layers])
+        cells = np.floor((positions - np.asarray(ctx.grid.origin)) / self.dx).astype(np.int64)
         if self.dim == 2:
             cells[:, 2] = 0  # the splat's one layer of cells
         lo = cells.min(0)
         size = cells.max(0) - lo + 1
-        box = wp.zeros(int(np.prod(size)), dtype=float, device=sim.device)
-        p = sim.particles
+        box = wp.zeros(int(np.prod(size)), dtype=float, device=ctx.device)
+        p = ctx.particles
         if p.count:
-            sim.launch(fill_box, p.count, [p.x, p.phase, p.active, p.vol0, sim.geometry, wp.vec3i(*lo.tolist()),
+            ctx.launch(fill_box, p.count, [p.x, p.phase, p.active, p.vol0, ctx.geometry, wp.vec3i(*lo.tolist()),
                                            wp.vec3i(*size.tolist()), box])
-        held = sim.read_host(box).reshape(tuple(size))
+        held = ctx.read_host(box).reshape(tuple(size))
         room = held[tuple((cells - lo).T)] <= CROWDED_FILL * self.dx**3
-        start, delivered = 0, sim.host_state["inflow_volume"]
+        start, delivered = 0, ctx.host_state["inflow_volume"]
         for i, points, velocity, material, layer_volume in layers:
             keep = room[start:start + len(points)]
             start += len(points)
             delivered[i, 0] += layer_volume
             delivered[i, 1] += layer_volume * keep.sum() / len(points)
             if keep.any():
-                self._add(sim, points[keep], np.tile(velocity, (int(keep.sum()), 1)), material,
+                self._add(ctx, points[keep], np.tile(velocity, (int(keep.sum()), 1)), material,
                           layer_volume / len(points))
 
     def _stream_layer(self, i, e: LiquidInflow, travelled: float, count: int) -> tuple:
@@ -349,36 +355,36 @@ class EmitterStage(Stage):
         return {"emitter": i, "material": e.material, "radius": radius, "volume": volume, "rng": rng,
                 "centre": self._point(e.center) + offset, "velocity": self._vector(e.velocity)}
 
-    def _release(self, sim, bubbles: list[dict]):
+    def _release(self, ctx, bubbles: list[dict]):
         """Add this step's bubbles, vent those due in the open air, push the fluid out of the others
         (the module docstring). In a domain the liquid cannot leave that may be full (_may_fill) the
         host reads the sites first: it needs the room left to compress the gas or stop the run."""
-        g, dev = sim.grid, lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
+        g, dev = ctx.grid, lambda a, t: wp.array(a, dtype=t, device=ctx.device)  # noqa: E731
         eps = 1e-4 * g.dx  # a centre outside the domain (a spread past a wall) counts as its edge cell's
         at = np.clip(np.array([b["centre"] for b in bubbles]), eps, np.asarray(g.domain_size) - eps)
         cells = np.floor((at - np.asarray(g.origin)) / g.dx).astype(np.int32)
-        top, held, least_J = self._sites(sim, dev(cells, wp.vec3i))
+        top, held, least_J = self._sites(ctx, dev(cells, wp.vec3i))
         factor, vent_on_device = 1.0, True
         for k, b in enumerate(bubbles):
             b["site"] = k
-        if self.room is not None and self._may_fill(sim, bubbles):
-            in_air, measured = self._read_sites(sim, top, held, least_J, cells)
-            densities = {name: m.density for name, m in sim.scene.materials.items()}
+        if self.room is not None and self._may_fill(ctx, bubbles):
+            in_air, measured = self._read_sites(ctx, top, held, least_J, cells)
+            densities = {name: m.density for name, m in ctx.scene.materials.items()}
             vented = sum(densities[b["material"]] * b["volume"] for b, air in zip(bubbles, in_air) if air)
             if vented > 0.0:
-                sim.launch(book_vented, 1, [sim.fields.vented_mass, wp.float64(vented)])
+                ctx.launch(book_vented, 1, [ctx.fields.vented_mass, wp.float64(vented)])
             bubbles = [b for b, air in zip(bubbles, in_air) if not air]
             if not bubbles:
                 return
-            factor, vent_on_device = self._room_factor(sim, bubbles, measured), False
-        subgrid = sim.stage("subgrid_bubbles")
-        first_new, owner, pushes = sim.particles.count, [], []
+            factor, vent_on_device = self._room_factor(ctx, bubbles, measured), False
+        subgrid = ctx.stage("subgrid_bubbles")
+        first_new, owner, pushes = ctx.particles.count, [], []
         for b in bubbles:
             mat = self.materials.index(b["material"])
             if subgrid and b["radius"] < subgrid.settings.radius:
                 # A sub-grid bubble is a sphere: in 2D the one holding the disk's volume.
                 r = (3.0 * b["volume"] / (4.0 * math.pi)) ** (1.0 / 3.0)
-                subgrid.add_bubbles(sim, b["centre"][None], np.array([r]), b["velocity"][None], mat)
+                subgrid.add_bubbles(ctx, b["centre"][None], np.array([r]), b["velocity"][None], mat)
                 owner.append(b["site"])
                 continue
             # Compressed (factor < 1), the bubble fills a smaller ball: that is the room it takes.
@@ -386,49 +392,49 @@ class EmitterStage(Stage):
             pts = _lattice_in_ball(radius, self.spacing, self.dim, b["rng"])
             positions = np.tile(b["centre"], (len(pts), 1))
             positions[:, : self.dim] += pts
-            self._add(sim, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
+            self._add(ctx, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
             owner += [b["site"]] * len(pts)
             pushes.append((b["centre"], radius**self.dim, PUSH_REACH * radius, b["site"]))
-        p, cells_dev = sim.particles, dev(cells, wp.vec3i)
+        p, cells_dev = ctx.particles, dev(cells, wp.vec3i)
         if vent_on_device:
-            sim.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
-                                                   sim.geometry, p.mass, p.active, sim.fields.vented_mass])
+            ctx.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
+                                                   ctx.geometry, p.mass, p.active, ctx.fields.vented_mass])
         if pushes and factor == 1.0:  # compressed, there is no room to push into: the gas gave it
             centres, radius_pow, reach, site = (np.array(col) for col in zip(*pushes))
-            sim.launch(make_room, first_new, [dev(centres.astype(np.float64), wp.vec3d),
+            ctx.launch(make_room, first_new, [dev(centres.astype(np.float64), wp.vec3d),
                                               dev(radius_pow.astype(np.float64), wp.float64),
                                               dev(reach.astype(np.float64), wp.float64),
                                               dev(site.astype(np.int32), wp.int32), cells_dev, top, len(pushes),
-                                              first_new, sim.geometry, p.phase, p.active, p.x])
-            sim.book_outflow()  # what the push carried through an open wall
+                                              first_new, ctx.geometry, p.phase, p.active, p.x])
+            ctx.book_outflow()  # what the push carried through an open wall
         if factor < 1.0:
-            sim.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
+            ctx.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
 
-    def _sites(self, sim, cells):
+    def _sites(self, ctx, cells):
         """The device's measures of the bubbles' sites and the fluid (injection_sites): no read."""
-        p, n = sim.particles, cells.shape[0]
-        top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=sim.device)
-        held = wp.zeros(3, dtype=wp.float64, device=sim.device)
-        least_J = wp.full(1, 1.0, dtype=float, device=sim.device)
+        p, n = ctx.particles, cells.shape[0]
+        top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=ctx.device)
+        held = wp.zeros(3, dtype=wp.float64, device=ctx.device)
+        least_J = wp.full(1, 1.0, dtype=float, device=ctx.device)
         if p.count:
-            sim.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, sim.geometry, cells, n, top,
+            ctx.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, ctx.geometry, cells, n, top,
                                                   held, least_J])
         return top, held, least_J
 
-    def _read_sites(self, sim, top, held, least_J, cells) -> tuple[np.ndarray, dict]:
+    def _read_sites(self, ctx, top, held, least_J, cells) -> tuple[np.ndarray, dict]:
         """(in the open air, per bubble; what the fluid holds now: "liquid" rest volume, "gas" volume V0 J
         and "gas_rest" V0, the gas's "least_J"), in one read."""
         n = len(cells)
-        out = wp.zeros(n + 4, dtype=wp.float64, device=sim.device)
-        sim.launch(pack_sites, n + 4, [top, held, least_J, out])
-        result = sim.read_host(out)
+        out = wp.zeros(n + 4, dtype=wp.float64, device=ctx.device)
+        ctx.launch(pack_sites, n + 4, [top, held, least_J, out])
+        result = ctx.read_host(out)
         tops = result[:n]
-        up, sign = sim.up
+        up, sign = ctx.up
         in_air = sign * cells[:, up] > tops if up >= 0 else tops == NO_LIQUID
         names = ("liquid", "gas", "gas_rest", "least_J")
         return in_air, {k: float(v) for k, v in zip(names, result[n:])}
 
-    def _may_fill(self, sim, bubbles: list[dict]) -> bool:
+    def _may_fill(self, ctx, bubbles: list[dict]) -> bool:
         """Whether the liquid, the gas and this step's bubbles may exceed the room, by bounds the host
         knows without a read: the liquid ever added at its rest volume (closed: none left), the gas
         ever added (Simulation.add_particles' ledger, which conversions only raise, and entrained air)
@@ -437,20 +443,20 @@ class EmitterStage(Stage):
         expand more; bounding them by their 0.1-atmosphere floor (10 times) read the room on most
         steps of a splash with 5% gas, so this gate trusts the resolved gas's measure. Only where the
         bound may exceed the room is the room read (docs/host_syncs.md)."""
-        mats = list(sim.scene.materials.values())
-        hs, p_atm = sim.host_state, sim.scene.domain.ambient_pressure
+        mats = list(ctx.scene.materials.values())
+        hs, p_atm = ctx.host_state, ctx.scene.domain.ambient_pressure
         liquid = float(hs["liquid_added"][0]) / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
         gas_mass = float(hs.get("gas_added", np.full(1, np.inf))[0]) + float(hs.get("gas_mass_entrained", np.zeros(1))[0])
         gauge = float(hs.get("gas_gauge", np.full(1, np.nan))[0])
         if math.isnan(gauge):  # the first step: the gas is as the shapes seeded it
-            gauge = max((abs(s.pressure or 0.0) for s in sim.scene.shapes), default=0.0)
+            gauge = max((abs(s.pressure or 0.0) for s in ctx.scene.shapes), default=0.0)
         if float(hs.get("gas_cavity", np.ones(1))[0]) != 0.0:
             return True  # a near vacuum's gas may expand without bound
         J = p_atm / max(p_atm - gauge, 0.1 * p_atm)
         gas = gas_mass / min(m.density for m in mats if m.is_gas) * J
         return liquid + gas + sum(b["volume"] for b in bubbles) > self.room
 
-    def _room_factor(self, sim, bubbles: list[dict], held: dict) -> float:
+    def _room_factor(self, ctx, bubbles: list[dict], held: dict) -> float:
         """1, or in a domain the liquid cannot leave that has no room for this step's bubbles at
         ambient pressure, the factor every gas particle's J takes (new bubbles included) so that the
         gas fills exactly the room the liquid leaves it: a closed box of water takes gas in only by
@@ -462,7 +468,7 @@ class EmitterStage(Stage):
         if self.room is None or held["liquid"] + held["gas"] + new <= self.room:
             return 1.0
         space, gas = self.room - held["liquid"], held["gas"] + new
-        mats = [m for m in sim.scene.materials.values() if m.is_gas]
+        mats = [m for m in ctx.scene.materials.values() if m.is_gas]
         key = f"[emitters.{bubbles[0]['emitter']}]"
         if space <= 0.0 or any(m.eos == "incompressible" for m in mats):
             why = ("the liquid fills all of it" if space <= 0.0
@@ -470,26 +476,26 @@ class EmitterStage(Stage):
         else:
             factor = space / gas
             gamma = max(m.gamma if m.eos == "adiabatic" else 1.0 for m in mats)
-            p_atm = sim.scene.domain.ambient_pressure
+            p_atm = ctx.scene.domain.ambient_pressure
             gauge = p_atm * (min(held["least_J"], 1.0) * factor) ** -gamma - p_atm  # the most compressed gas's
-            bound = min(float(max_gauge_pressure(sim.scene.materials)), MAX_INJECTED_GAUGE * p_atm)
+            bound = min(float(max_gauge_pressure(ctx.scene.materials)), MAX_INJECTED_GAUGE * p_atm)
             if gauge <= bound:
                 return factor
             why = (f"the gas, {gas / space:.3g} times its room, would be at {gauge:.4g} Pa gauge, above the "
                    f"{bound:.4g} Pa that compressed gas is held to here ({MAX_INJECTED_GAUGE:g} x "
                    f"[domain].ambient_pressure, beyond which the solve does not keep it at Boyle's pressure)")
-        stop = f", or {key}.stop <= {sim.time:.4g} s" if sim.time > self.emitters[bubbles[0]["emitter"]].start else ""
+        stop = f", or {key}.stop <= {ctx.time:.4g} s" if ctx.time > self.emitters[bubbles[0]["emitter"]].start else ""
         raise GasRoomError(
-            f"t = {sim.time:.6g} s: {key} (gas_injector) releases gas into a domain the liquid cannot leave "
+            f"t = {ctx.time:.6g} s: {key} (gas_injector) releases gas into a domain the liquid cannot leave "
             f"and has no room for it: {why}. Fixes: an open wall the liquid can leave through (not the top), "
             f"less liquid, a lower {key}.rate or {key}.radius{stop}")
 
-    def _inside(self, sim, positions):
+    def _inside(self, ctx, positions):
         eps = 1e-4 * self.dx
-        return np.clip(positions, eps, np.array(sim.grid.domain_size) - eps)  # like the transfers' clamp
+        return np.clip(positions, eps, np.array(ctx.grid.domain_size) - eps)  # like the transfers' clamp
 
-    def _add(self, sim, positions, velocities, material: str, volume_each: float):
-        positions = self._inside(sim, positions)  # never outside
+    def _add(self, ctx, positions, velocities, material: str, volume_each: float):
+        positions = self._inside(ctx, positions)  # never outside
         n = len(positions)
-        sim.add_particles(positions.astype(np.float32), velocities.astype(np.float32),
+        ctx.add_particles(positions.astype(np.float32), velocities.astype(np.float32),
                           np.full(n, self.materials.index(material), np.int32), np.full(n, volume_each))

@@ -113,7 +113,7 @@ def test_ordinary_gas_never_runs_the_cavity_kernels(tmp_path):
     first = {k: sim.launches[k] for k in CAVITY_KERNELS}
     for _ in range(3):
         sim.step(sim.stable_dt())
-    assert sim.host_state["gas_cavity"][0] == 0.0
+    assert sim.stage("gas").state.cavity == 0.0
     assert {k: sim.launches[k] for k in CAVITY_KERNELS} == first
     assert not np.any(sim.fields.cavity.numpy())
     assert not np.any(sim.particles.numpy("cavity_gas"))
@@ -121,7 +121,7 @@ def test_ordinary_gas_never_runs_the_cavity_kernels(tmp_path):
 
 def test_a_checkpoint_from_before_the_cavity_model_resumes(tmp_path):
     """An older checkpoint has no per-particle cavity_gas: it loads with the field's fresh default (0),
-    as an older checkpoint's missing host_state does, and the run goes on (no KeyError)."""
+    as an older checkpoint's missing host values do, and the run goes on (no KeyError)."""
     from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 
     scene = Scene(domain=Domain(size=(0.04, 0.04), cell_size=0.04 / 16),

@@ -63,8 +63,8 @@ def test_bubbles_released_into_air_join_it(tmp_path, room_read):
     seeded = sim.gas_budget()
     n0 = int(gas(sim)[1].sum())
     if not room_read:  # what the first step's measures say: no gas below ambient, no cavity
-        sim.host_state["gas_gauge"][:] = 0.0
-        sim.host_state["gas_cavity"][:] = 0.0
+        sim.stage("gas").state.gauge = 0.0
+        sim.stage("gas").state.cavity = 0.0
     with sim.count_host_reads() as reads:
         sim.stage("emitters").begin_step(sim.ctx, 3.5e-3)  # three bubbles released, alone: nothing else vents
     assert reads.by_module.get("effects.emitters", 0) == int(room_read)

@@ -149,7 +149,7 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
 def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_path):
     sims = [Simulation(splash_scene(tmp_path), "cpu") for _ in range(2)]
     roomy, tight = sims
-    tight.host_state["entrainment_capacity"][:] = 1  # one slot: the first step seeding two overflows
+    tight.stage("entrainment").state.capacity = 1  # one slot: the first step seeding two overflows
     new = 0
     while new < 2:  # in lock step: identical until that step
         n0, seeded0 = roomy.num_particles, roomy.stage("entrainment").seeded
@@ -158,10 +158,10 @@ def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_
         new = roomy.stage("entrainment").seeded - seeded0
         assert tight.stage("entrainment").seeded == roomy.stage("entrainment").seeded
     assert tight.stage("entrainment").overflows == 1 and roomy.stage("entrainment").overflows == 0
-    assert tight.host_state["entrainment_capacity"][0] == 2 * new
+    assert tight.stage("entrainment").state.capacity == 2 * new
     for sim in sims:
         p = sim.particles
-        assert sim.num_particles == n0 + new and sim.host_state["next_id"][0] == n0 + new
+        assert sim.num_particles == n0 + new and sim.ledger.next_id == n0 + new
         assert np.array_equal(p.numpy("ids")[n0:], np.arange(n0, n0 + new))
         assert (p.numpy("phase")[n0:] == PHASE_SUBGRID).all() and (p.numpy("active")[n0:] == 1).all()
         # Beyond the count the arrays stay zero: the provisional slots were never written.

@@ -165,7 +165,7 @@ def test_subgrid_bubbles_carried_through_an_open_wall_are_booked(tmp_path):
     bubble = np.float32(1.2 * math.pi * radius**2 * 0.005)  # air at ambient: a 2D bubble is a disk through the slab
     for _ in range(4):
         sim.advance_frame()
-        released = int(np.asarray(sim.host_state["emitters"])[0, 1])
+        released = int(sim.stage("emitters").state.progress[0, 1])
         gas = sim.gas_budget()
         assert gas["total"] == pytest.approx(released * float(bubble), rel=1e-6)
     held = ((sim.particles.numpy("phase") == PHASE_SUBGRID) & (sim.particles.numpy("active") == 1)).sum()

@@ -124,7 +124,7 @@ def expanding_gas_limit(tmp_path, rate_per_axis):
     report = sim.read_host(f.max_speed)
     for read in sim.report_readers:
         read(sim, report)
-    assert float(sim.host_state["gas_expansion_rate"][0]) == pytest.approx(g.dim * rate_per_axis, rel=1e-5)
+    assert sim.stage("gas").state.expansion_rate == pytest.approx(g.dim * rate_per_axis, rel=1e-5)
     return sim, sim.dt_limits()
 
 

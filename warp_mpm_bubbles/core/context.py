@@ -31,8 +31,7 @@ class StepContext:
     has_gas: bool
     open_walls: bool  # particles may leave: book_outflow after a kernel that moves them
     effects: list  # the effect names that run in this scene
-    # checkpointed host values by name (io/checkpoint.py), for the stages that keep their own there
-    host_state: dict
+    ledger: Any  # Ledger (core/host_state.py): next particle id, liquid and gas added; a stage's own: its `state`
     # the step's one read-back (core/step.py, read_back): f(ctx) writes into it before, f(ctx, report) reads after
     report_writers: list = field(default_factory=list)
     report_readers: list = field(default_factory=list)

@@ -35,6 +35,7 @@ from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
+from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
@@ -87,8 +88,8 @@ class Simulation:
     """Runs a validated :class:`~warp_mpm_bubbles.scene.Scene` on a Warp device ("cpu", "cuda:0").
 
     Public state: ``particles`` (`ParticleState`), ``fields`` (`GridFields`), ``grid`` (`MacGrid`),
-    ``time`` and ``frame``, ``host_state`` (small checkpointed state of the stages), ``gravity``
-    (3 floats, m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1
+    ``time`` and ``frame``, ``ledger`` (the next id, the liquid and gas added), ``ctx`` (the
+    `StepContext` the stages see), ``gravity`` (3 floats, m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1
     without gravity), and ``geometry``, the `GridGeometry` struct the particle kernels take.
     """
 
@@ -101,8 +102,7 @@ class Simulation:
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
         self.sort_every = SORT_EVERY
         self._sorted_at = 0  # the step of the last sort by cell
-        # next_id: the next particle's id; liquid_added: kg of liquid seeded and emitted (mass_budget)
-        self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64), "liquid_added": np.zeros(1)}
+        self.ledger = Ledger()  # the next particle's id, the liquid and gas added (core/host_state.py)
         self._init_geometry()
         self.particles = ParticleState(self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
@@ -135,7 +135,7 @@ class Simulation:
             scene=self.scene, device=self.device, grid=self.grid, fields=self.fields, particles=self.particles,
             geometry=self.geometry, launcher=self.launcher, stats=SolverStats(), gravity=self.gravity, up=self.up,
             two_phase=self.two_phase, interface=self.interface, has_gas=self.has_gas, open_walls=self.open_walls,
-            effects=self.effects, host_state=self.host_state, read_host=self.read_host,
+            effects=self.effects, ledger=self.ledger, read_host=self.read_host,
             add_particles=self.add_particles, stage=self.stage, extend=self.extend, book_outflow=self.book_outflow,
             dt_limits=self.dt_limits)
 
@@ -199,6 +199,21 @@ class Simulation:
         """``with sim.count_host_reads() as reads: sim.step(dt)``: the host reads inside, by module."""
         return HostReads()
 
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """The host values a resumed run needs, by checkpoint name: the core's ledger, the void pass's
+        and each stage's `state` (core/host_state.py; io/checkpoint.py saves them)."""
+        out = {**self.ledger.arrays(), **self.voids.state.arrays()}
+        for s in self.stages:
+            out.update(s.state_arrays())
+        return out
+
+    def load_state(self, arrays: dict) -> None:
+        """Take back what state_arrays gave (a name missing from an older checkpoint keeps its fresh value)."""
+        self.ledger.load(arrays)
+        self.voids.state.load(arrays)
+        for s in self.stages:
+            s.load_state(arrays)
+
     def add_particles(self, positions, velocities, material, volume, gauge_pressure=None) -> slice:
         """Append particles (numpy arrays; material: indices into scene.materials; volume: current,
         m^3) and return their index range. Each particle gets the next id, which it keeps for good
@@ -219,15 +234,15 @@ class Simulation:
             "active": np.ones(n, np.int32), "material": np.asarray(material, np.int32),
             "gas_law": per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32),
             "gas_gamma": per_material(lambda m: m.gamma, np.float32),
-            "ids": self.host_state["next_id"][0] + np.arange(n, dtype=np.int64),
+            "ids": self.ledger.next_id + np.arange(n, dtype=np.int64),
         }
-        self.host_state["next_id"] = self.host_state["next_id"] + n
+        self.ledger.next_id += n
         liquid = values["phase"] == PHASE_LIQUID  # booked as stored (float32), so the ledger closes exactly
         stored = np.asarray(values["mass"], np.float32).astype(np.float64)
-        self.host_state["liquid_added"] = self.host_state["liquid_added"] + stored[liquid].sum()
+        self.ledger.liquid_added += float(stored[liquid].sum())
         # Gas appended (kg; conversions re-append what they retire, so an upper bound of what is held):
         # the emitters' room bound reads nothing (effects/emitters.py, _may_fill).
-        self.host_state["gas_added"] = self.host_state.get("gas_added", np.zeros(1)) + stored[~liquid].sum()
+        self.ledger.gas_added += float(stored[~liquid].sum())
         added = self.particles.append(values, n)
         if n:
             self.max_particle_speed = max(self.max_particle_speed,
@@ -524,7 +539,7 @@ class Simulation:
             if on_step:
                 on_step(dt, t_end - self.time)
         if not self.particles.in_id_order:
-            self.particles.sort_by_id(int(self.host_state["next_id"][0]), self.launch)
+            self.particles.sort_by_id(self.ledger.next_id, self.launch)
 
     @property
     def frame_dt(self) -> float:

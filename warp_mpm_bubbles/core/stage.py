@@ -35,8 +35,9 @@ A stage is one class in one module that owns all of its physics (docs/design.md,
   that passes the time, or reads the host, says False and runs between the graphs).
 - ``output_radii(particles)``, ``gas_held`` and ``summary_lines(ctx)``: what it adds to the output
   (radii of the bubbles it owns) and to the run summary, so io/ names no effect.
-- what it checkpoints: per-particle arrays made with `ParticleState.add_field` and entries of
-  `Simulation.host_state` are saved and restored with everything else.
+- what it checkpoints: per-particle arrays made with `ParticleState.add_field`, and ``state``, the
+  dataclass of its small host values (derived from core/host_state.py's `HostState`), are saved
+  and restored with everything else (`state_arrays`, `load_state`).
 
 The built-in stages and the order stages take at a shared hook are not named here: the package
 registers them when it loads (warp_mpm_bubbles/stages.py, `register_builtin_stages`), so the core
@@ -74,6 +75,16 @@ class Stage:
 
     def __init__(self, ctx, settings=None):
         self.settings = settings
+        self.state = None  # its HostState, if it keeps host values from step to step
+
+    def state_arrays(self) -> dict:
+        """Its host values by checkpoint name (io/checkpoint.py saves them)."""
+        return self.state.arrays() if self.state is not None else {}
+
+    def load_state(self, arrays: dict) -> None:
+        """Take back those of its values `arrays` holds (a resumed run)."""
+        if self.state is not None:
+            self.state.load(arrays)
 
     @property
     def timer_name(self) -> str:

@@ -28,7 +28,7 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    (`seeded`), and Simulation.step splats and classifies again, so the same step's solve sees the
    pocket as gas cells, a resolved bubble, never as EMPTY at p = 0 inside the liquid (the pour's 90
    frames: at most 1,045 void cells at one step before, none after). The mass is booked as taken
-   from the atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays
+   from the atmosphere (`VoidPass.state`, checkpointed as "gas_mass_trapped", so Simulation.gas_budget's total stays
    exact). One beside gas is the space the gas just left (a burst's vented cavity), not trapped
    air. Without gas, or beside incompressible gas, a large region stays EMPTY.
 
@@ -42,11 +42,14 @@ fill, liquid and gas as one medium (see VoidPass.__init__).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import warp as wp
 
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
 from .cells import cell_type_at
+from .host_state import HostState, saved
 from .lines import Lines, line_end, line_first, make_lines, on_line
 
 wp.set_module_options({"enable_backward": False})
@@ -340,6 +343,11 @@ class VoidSearch:
         self.launch(kernel, dims, [box, *inputs])
 
 
+@dataclass
+class TrappedAir(HostState):
+    gas_mass: float = saved("gas_mass_trapped", 0.0)  # kg of air taken from the atmosphere into pockets
+
+
 class VoidPass:
     """Finds the voids after the cells are classified (VoidSearch) and makes them liquid (or, with gas,
     trapped air); see the module docstring. `last_voids`: void cells found this step (the run's report),
@@ -364,8 +372,7 @@ class VoidPass:
         gas_kinds = [m for m in sim.scene.materials.values() if m.is_gas] if sim.has_gas else []
         self.compressible = any(m.eos != "incompressible" for m in gas_kinds)
         self.clear_holes = not gas_kinds
-        if self.gas_material is not None:  # checkpointed with the rest of host_state
-            sim.host_state.setdefault("gas_mass_trapped", np.zeros(1))
+        self.state = TrappedAir()  # checkpointed (core/host_state.py)
         self.last_voids = 0
         self.by_frame: dict[int, int] = {}  # most void cells at one step, per frame that had any (run summary)
         self.pockets = 0  # void regions seeded as trapped air
@@ -469,4 +476,4 @@ class VoidPass:
         volume = np.full(n, g.dx**3 / ppc)
         added = sim.add_particles(positions, np.zeros((n, 3)), material, volume)
         mass = float(sim.particles.numpy("mass")[added].astype(np.float64).sum())
-        sim.host_state["gas_mass_trapped"] = sim.host_state["gas_mass_trapped"] + mass
+        self.state.gas_mass += mass

@@ -1,7 +1,7 @@
 """Emitters: a pouring stream of liquid and an air stone releasing gas bubbles.
 
 Both work on the host at the start of a step and append particles (Simulation.add_particles).
-Their progress (stream length owed, bubbles owed, how many emitted) lives in ctx.host_state, so a
+Their progress (stream length owed, bubbles owed, how many emitted) lives in the stage's state, so a
 resumed run emits exactly what an uninterrupted one does; every random draw is seeded by
 (scene seed, emitter, count), never by a global generator.
 
@@ -11,7 +11,7 @@ one-cell slab, pi r^2 dx, sub-grid bubbles too: a bubble is the same gas whichev
 
 A stream delivers what the liquid lets in: a particle whose cell the liquid already fills past
 CROWDED_FILL (a nozzle under water, aimed at a wall, or in a full box) is not laid, and
-host_state["inflow_volume"] books what each stream owed and what it delivered (the run's summary
+the state's inflow books what each stream owed and what it delivered (the run's summary
 says when it is less). Laid anyway, such layers crowded the liquid into 0.84-0.89 of its rest volume.
 
 Where a bubble goes (all of a step's bubbles at once, from the particles as they are now, so a
@@ -34,6 +34,7 @@ resumed run decides alike; one read, docs/host_syncs.md):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -42,6 +43,7 @@ from ..core.cells import cell_of
 from ..core.geometry import GridGeometry
 from ..core.grid import ACTIVE, AIRBORNE, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.simulation import SimulationError
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.transfer_kernels import CELL_OFFSET, grid_coord, make_stencil
 from ..core.boundary import clamp_to_domain, keep_in_domain, open_wall_exit
@@ -221,6 +223,15 @@ def _lattice_in_ball(radius: float, spacing: float, dim: int, rng) -> np.ndarray
     return pts if len(pts) else np.zeros((1, dim))
 
 
+@dataclass
+class EmitterState(HostState):
+    # per emitter: [amount owed (stream length, m / bubbles), number emitted so far]
+    progress: np.ndarray = saved("emitters", factory=lambda: np.zeros((0, 2)))
+    # per emitter: [volume its stream owed (layers x layer volume), volume delivered] (m^3; 2D: the
+    # one-cell slab). A blocked nozzle delivers less (_deliver): the summary says so.
+    inflow: np.ndarray = saved("inflow_volume", factory=lambda: np.zeros((0, 2)))
+
+
 class EmitterStage(Stage):
     """[[emitters]]: particles added at the start of each step; their speed enters the CFL limit
     before any particle has it."""
@@ -237,11 +248,7 @@ class EmitterStage(Stage):
         self.seed = scene.solver.seed
         self.materials = list(scene.materials)
         self.emitters = scene.emitters
-        # per emitter: [amount owed (stream length, m / bubbles), number emitted so far]
-        ctx.host_state["emitters"] = np.zeros((len(self.emitters), 2))
-        # per emitter: [volume its stream owed (layers x layer volume), volume delivered] (m^3; 2D: the
-        # one-cell slab). A blocked nozzle delivers less (_deliver): the summary says so.
-        ctx.host_state["inflow_volume"] = np.zeros((len(self.emitters), 2))
+        self.state = EmitterState(np.zeros((len(self.emitters), 2)), np.zeros((len(self.emitters), 2)))
         # The room a domain the liquid cannot leave has for liquid and gas (m^3; 2D: the one-cell
         # slab), colliders where they stand at t = 0; None where the liquid drains (open walls).
         self.room = None
@@ -262,11 +269,11 @@ class EmitterStage(Stage):
         """A line for each stream that delivered less than it owed (_deliver refused crowded cells)."""
         return [f"  [emitters.{i}] delivered {100 * delivered / owed:.0f}% of its stream: its nozzle's cells "
                 f"were full of liquid (submerged, or the stream blocked)"
-                for i, (owed, delivered) in enumerate(ctx.host_state["inflow_volume"]) if delivered < owed * (1.0 - 1e-9)]
+                for i, (owed, delivered) in enumerate(self.state.inflow) if delivered < owed * (1.0 - 1e-9)]
 
     def begin_step(self, ctx, dt: float):
         t = ctx.time
-        state = ctx.host_state["emitters"]
+        state = self.state.progress
         bubbles, layers = [], []  # this step's, placed together (_release, _deliver)
         for i, e in enumerate(self.emitters):
             stop = math.inf if e.stop is None else e.stop
@@ -312,7 +319,7 @@ class EmitterStage(Stage):
                                            wp.vec3i(*size.tolist()), box])
         held = ctx.read_host(box).reshape(tuple(size))
         room = held[tuple((cells - lo).T)] <= CROWDED_FILL * self.dx**3
-        start, delivered = 0, ctx.host_state["inflow_volume"]
+        start, delivered = 0, self.state.inflow
         for i, points, velocity, material, layer_volume in layers:
             keep = room[start:start + len(points)]
             start += len(points)
@@ -444,13 +451,14 @@ class EmitterStage(Stage):
         steps of a splash with 5% gas, so this gate trusts the resolved gas's measure. Only where the
         bound may exceed the room is the room read (docs/host_syncs.md)."""
         mats = list(ctx.scene.materials.values())
-        hs, p_atm = ctx.host_state, ctx.scene.domain.ambient_pressure
-        liquid = float(hs["liquid_added"][0]) / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
-        gas_mass = float(hs.get("gas_added", np.full(1, np.inf))[0]) + float(hs.get("gas_mass_entrained", np.zeros(1))[0])
-        gauge = float(hs.get("gas_gauge", np.full(1, np.nan))[0])
+        ledger, p_atm = ctx.ledger, ctx.scene.domain.ambient_pressure
+        gas_stage, entrainment = ctx.stage("gas"), ctx.stage("entrainment")
+        liquid = ledger.liquid_added / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
+        gas_mass = ledger.gas_added + (entrainment.state.gas_mass if entrainment else 0.0)
+        gauge = gas_stage.state.gauge if gas_stage else math.nan
         if math.isnan(gauge):  # the first step: the gas is as the shapes seeded it
             gauge = max((abs(s.pressure or 0.0) for s in ctx.scene.shapes), default=0.0)
-        if float(hs.get("gas_cavity", np.ones(1))[0]) != 0.0:
+        if (gas_stage.state.cavity if gas_stage else 1.0) != 0.0:
             return True  # a near vacuum's gas may expand without bound
         J = p_atm / max(p_atm - gauge, 0.1 * p_atm)
         gas = gas_mass / min(m.density for m in mats if m.is_gas) * J

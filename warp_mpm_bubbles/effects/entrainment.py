@@ -17,13 +17,15 @@ The capacity (checkpointed) doubles after a step that seeds more; that step's ex
 at the read-back, without its first sub-grid move (logged in `overflows`).
 
 The seeds' gas is air the splash took from the atmosphere: once their count is known (settle) their
-mass is booked in host_state["gas_mass_entrained"] (kg, checkpointed), which Simulation.gas_budget
-subtracts from its total like the air core/voids.py books as trapped, so the total stays conserved.
+mass is booked in its state's gas_mass (kg, checkpointed as "gas_mass_entrained"), which
+Simulation.gas_budget subtracts from its total like the air core/voids.py books as trapped, so the
+total stays conserved.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -31,6 +33,7 @@ import warp as wp
 from ..core.cells import block_offset, block_size, cell_type_at
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID, PHASE_SUBGRID
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.simulation import GAS_LAW_CODES
 from ..scene.effects import Entrainment
@@ -186,6 +189,12 @@ def seed_total(seeds: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32),
     report[1] = float(n)
 
 
+@dataclass
+class EntrainmentState(HostState):
+    capacity: int = saved("entrainment_capacity", 256)  # seed slots per step (doubled past an overflow)
+    gas_mass: float = saved("gas_mass_entrained", 0.0)  # kg taken from the air (module docstring)
+
+
 class EntrainmentStage(Stage):
     """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them."""
 
@@ -199,8 +208,7 @@ class EntrainmentStage(Stage):
         self._seeds = wp.zeros(n_cells, dtype=wp.int32, device=ctx.device)
         self._first = wp.zeros(n_cells, dtype=wp.int32, device=ctx.device)
         self._total = wp.zeros(1, dtype=wp.int32, device=ctx.device)
-        ctx.host_state.setdefault("entrainment_capacity", np.array([256], np.int64))  # slots per step
-        ctx.host_state.setdefault("gas_mass_entrained", np.zeros(1))  # kg taken from the air (module docstring)
+        self.state = EntrainmentState()
         self._pending = None  # (base, capacity, seed) while this step's seeds are provisional
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
         self.overflows = 0  # steps that seeded more than the capacity (not checkpointed)
@@ -228,7 +236,7 @@ class EntrainmentStage(Stage):
                                           seed, self._seeds])
         wp.utils.array_scan(self._seeds, self._first, inclusive=False)
         ctx.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
-        base, capacity = p.count, int(ctx.host_state["entrainment_capacity"][0])
+        base, capacity = p.count, self.state.capacity
         p.reserve(base + capacity)
         self._place(ctx, seed, 0, capacity, base)
         p.count = base + capacity  # provisional: the next stages' launches cover the seeds
@@ -238,7 +246,7 @@ class EntrainmentStage(Stage):
         f, p = ctx.fields, ctx.particles
         ctx.launch(place_seeds, ctx.grid.cells,
                    [self._seeds, self._first, *f.vel, f.types, ctx.geometry, seed, lo, hi, base,
-                    wp.int64(int(ctx.host_state["next_id"][0])), self._bubble_values(ctx),
+                    wp.int64(ctx.ledger.next_id), self._bubble_values(ctx),
                     p.x, p.v, p.mass, p.vol0, p.J, p.phase, p.active, p.material, p.gas_law, p.gas_gamma, p.ids])
 
     @property
@@ -263,9 +271,9 @@ class EntrainmentStage(Stage):
             p.reserve(base + total)
             self._place(ctx, seed, capacity, total, base)
             p.count = base + total
-            ctx.host_state["entrainment_capacity"] = np.array([2 * total], np.int64)
+            self.state.capacity = 2 * total
             self.overflows += 1
-        ctx.host_state["next_id"] = ctx.host_state["next_id"] + total
+        ctx.ledger.next_id += total
         # Every seed holds the same float32 mass (place_seeds): the booking matches the particles exactly.
-        ctx.host_state["gas_mass_entrained"] = ctx.host_state["gas_mass_entrained"] + total * self._bubble_values(ctx).mass
+        self.state.gas_mass += float(total * self._bubble_values(ctx).mass)
         self.seeded += total

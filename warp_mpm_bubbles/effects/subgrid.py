@@ -35,12 +35,13 @@ those (two reads, docs/host_syncs.md), groups them, and the device retires and p
   The small void it leaves is refilled by the solver (holes are fluid, see classify_cells).
 Mass is conserved exactly: the merged masses are summed in float64, and the float32 rounding of
 the new particles' masses (below 2^-24 of the converted mass) is booked in
-host_state["gas_mass_rounding"], which Simulation.gas_budget adds to its total.
+its state (checkpointed as "gas_mass_rounding"), which Simulation.gas_budget adds to its total.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -49,6 +50,7 @@ from ..core.cells import cell_of
 from ..core.gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
 from ..core.geometry import GridGeometry
 from ..core.grid import ACTIVE, EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
@@ -358,6 +360,11 @@ def _ball_lattice(n: int, spacing: float, dim: int) -> np.ndarray:
     return pts[order[:n]] * spacing
 
 
+@dataclass
+class ConversionRounding(HostState):
+    gas_mass: float = saved("gas_mass_rounding", 0.0)  # kg, see the module docstring
+
+
 class SubgridBubbleStage(Stage):
     """[effects.subgrid_bubbles]: the drag reaction on u* (on_momentum), bubbles moved and converted
     after g2p. Other stages add bubbles through `add_bubbles` (entrainment, emitters)."""
@@ -382,7 +389,7 @@ class SubgridBubbleStage(Stage):
         self.gas_material = next(i for i, m in enumerate(materials) if m.is_gas)  # for entrained bubbles
         self.threshold_volume = 4.0 / 3.0 * math.pi * settings.radius**3
         ctx.particles.add_field("subgrid_impulse", wp.vec3)
-        ctx.host_state.setdefault("gas_mass_rounding", np.zeros(1))  # kg, see the module docstring
+        self.state = ConversionRounding()
         self.conversions = {"gathered": 0, "shrunk": 0}  # events since start (not checkpointed)
         self._flag = self._slot = None  # conversions' scratch: candidate flags and their scan
         self._counts = wp.zeros(2, dtype=wp.int32, device=ctx.device)  # candidates, entrainment's pending seeds
@@ -518,8 +525,7 @@ class SubgridBubbleStage(Stage):
         return [gas[label == lab] for lab in small]
 
     def _book_rounding(self, ctx, exact: float, stored: np.ndarray):
-        ctx.host_state["gas_mass_rounding"] = ctx.host_state["gas_mass_rounding"] + (
-            exact - stored.astype(np.float64).sum())
+        self.state.gas_mass += float(exact - stored.astype(np.float64).sum())
 
     def _to_resolved(self, ctx, snap, members):
         """Fill the merged volume with gas particles at the seeding spacing; returns the liquid's

@@ -217,9 +217,9 @@ class Cavities:
 
     def after_p2g(self, ctx):
         """First of the step: no gas was a cavity's, nor under CAVITY_ENTER, at the last step's end
-        (the gas stage's read-back, host_state) means no cell can be one now: all is skipped."""
+        (the gas stage's read-back, its state) means no cell can be one now: all is skipped."""
         f, p = ctx.fields, ctx.particles
-        self.active = ctx.host_state["gas_cavity"][0] > 0.0
+        self.active = ctx.stage("gas").state.cavity > 0.0
         if not self.active:
             if self._marked:
                 f.cavity.zero_()

@@ -18,14 +18,15 @@ limit, "gas_expansion", keeps a violent expansion or collapse resolved (dt_limit
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.gas_law import GAS_ADIABATIC, gas_pressure
 from ..core.transfer_kernels import (CELL_OFFSET, clamp_to_domain, gas_volume_rate,
@@ -271,6 +272,16 @@ def pressure_step(cfl: float, dx: float, gauge: float, rho: float, hydrostatic: 
 # ------------------------------------------------------------------------------------ the stage
 
 
+@dataclass
+class GasState(HostState):
+    """The last step's measures for dt_limit, from the step's one read-back (checkpointed: a resumed
+    run steps alike)."""
+
+    gauge: float = saved("gas_gauge", math.nan)  # the largest |gauge pressure|, Pa (NaN: not measured yet)
+    expansion_rate: float = saved("gas_expansion_rate", 0.0)  # the fastest relative volume change, 1/s
+    cavity: float = saved("gas_cavity", 1.0)  # 1: a cavity may exist this step (physics/cavity.py)
+
+
 class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
@@ -296,12 +307,7 @@ class GasStage(Stage):
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
         self.vents = "foam" not in ctx.effects
         self._limit = (None, math.inf)  # dt_limit is asked more than once per step
-        # The last step's measures for dt_limit, from the step's one read-back (checkpointed: a
-        # resumed run steps alike): the largest |gauge pressure| (NaN: not measured yet), and the
-        # fastest relative volume change (1/s).
-        ctx.host_state["gas_gauge"] = np.full(1, np.nan)
-        ctx.host_state["gas_expansion_rate"] = np.zeros(1)
-        ctx.host_state["gas_cavity"] = np.ones(1)  # 1: a cavity may exist this step (physics/cavity.py)
+        self.state = GasState()
         ctx.report_writers.append(self._write_report)
         ctx.report_readers.append(self._read_report)
         mats = list(ctx.scene.materials.values())
@@ -320,15 +326,15 @@ class GasStage(Stage):
         key = (ctx.stats.steps, ctx.time, ctx.particles.count)
         if self._limit[0] == key:
             return self._limit[1]
-        gauge = float(ctx.host_state["gas_gauge"][0])
+        gauge = self.state.gauge
         if math.isnan(gauge):  # the first step (or an older checkpoint): measured once here
             first = ctx.read_host(self._measure_gauge(ctx, wp.zeros(CAVITY_SLOT + 1, dtype=float, device=ctx.device)))
             gauge = float(first[GAUGE_SLOT])
-            ctx.host_state["gas_cavity"][0] = float(first[CAVITY_SLOT])
+            self.state.cavity = float(first[CAVITY_SLOT])
         cfl, dx, ambient = ctx.scene.solver.cfl, ctx.grid.dx, ctx.scene.domain.ambient_pressure
         # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
         limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
-        rate = float(ctx.host_state["gas_expansion_rate"][0])  # checkpointed: a resumed run steps alike
+        rate = self.state.expansion_rate  # checkpointed: a resumed run steps alike
         if 0.0 < rate < math.inf:  # an overflowed rate is a diverged step: p2g's check names it
             # Floor: a very compressible gas (near vacuum) changes volume at a rate ~ 1/dt whatever
             # dt is, which would shrink the step geometrically to 0: the floor is a tenth of the step
@@ -353,9 +359,9 @@ class GasStage(Stage):
                                                  g.dx, g.dim, RATE_SLOT, f.max_speed, r.lo])
 
     def _read_report(self, ctx, report):
-        ctx.host_state["gas_gauge"][0] = float(report[GAUGE_SLOT])
-        ctx.host_state["gas_expansion_rate"][0] = float(report[RATE_SLOT])
-        ctx.host_state["gas_cavity"][0] = float(report[CAVITY_SLOT])
+        self.state.gauge = float(report[GAUGE_SLOT])
+        self.state.expansion_rate = float(report[RATE_SLOT])
+        self.state.cavity = float(report[CAVITY_SLOT])
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -411,7 +417,7 @@ class GasStage(Stage):
         ctx.launch_particles(update_gas_J, [p.x, p.phase, p.active, p.gas_law, f.gas_rate, ctx.geometry, dt, p.J])
         self.cavities.update_J(ctx, dt)
         ambient = ctx.scene.domain.ambient_pressure
-        if self.cavities.active or ctx.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
+        if self.cavities.active or self.state.gauge > SPREAD_GATE * ambient:
             ctx.launch(limit_gas_pressure_spread, p.count,
                        [p.x, p.phase, p.active, p.gas_law, p.gas_gamma, f.gas_volume, f.gas_pv, ambient,
                         MAX_PRESSURE_SPREAD, ctx.geometry, p.J])

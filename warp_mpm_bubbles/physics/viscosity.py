@@ -11,12 +11,17 @@ otherwise. mu of each phase is the largest dynamic viscosity among its materials
 """
 
 import math
+from dataclasses import dataclass
 
-import numpy as np
-
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..scene.effects import Viscosity
 from .viscous_solve import ViscousSolver
+
+
+@dataclass
+class ViscousRate(HostState):
+    rate: float = saved("viscous_rate", 0.0)  # 1/s: the last grid's explicit rate
 
 
 class ViscosityStage(Stage):
@@ -34,8 +39,8 @@ class ViscosityStage(Stage):
         # Before the first step's grid exists: each material's own rate, 8 dim nu/dx^2 (4 dim for
         # the Laplacian part, as much again for grad div), so the limit is dx^2 / (4 dim nu).
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
-        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: host_state.
-        ctx.host_state["viscous_rate"] = np.array([8 * ctx.grid.dim * nu / ctx.grid.dx**2])
+        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
+        self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
         self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
@@ -43,7 +48,7 @@ class ViscosityStage(Stage):
 
     def explicit_limit(self, ctx) -> float:
         """Forward Euler's largest stable step on the last grid seen (s)."""
-        rate = float(ctx.host_state["viscous_rate"][0])
+        rate = self.state.rate
         return 2.0 / rate if rate > 0.0 else math.inf
 
     def dt_limit(self, ctx) -> float:
@@ -63,7 +68,7 @@ class ViscosityStage(Stage):
     def force(self, ctx, dt: float):
         f, s = ctx.fields, self.settings
         self.solver.set_viscosity(f.types, f.liq_volume, f.gas_volume, ctx.two_phase, self.mu_liquid, self.mu_gas)
-        ctx.host_state["viscous_rate"] = np.array([self.solver.prepare(f.types, f.inv_rho, dt)])
+        self.state.rate = float(self.solver.prepare(f.types, f.inv_rho, dt))
         limit = self.explicit_limit(ctx)
         if s.solver == "implicit" or (s.solver == "auto" and dt > limit):
             info = self.solver.implicit(f.types, f.inv_rho, f.vel, dt, s.tolerance, s.max_iterations)

@@ -29,7 +29,6 @@ class StepContext:
     two_phase: int  # 1 with the gas stage: the solve sees gas cells
     interface: int  # index into core.grid.INTERFACES ([solver].interface)
     has_gas: bool
-    open_walls: bool  # particles may leave: book_outflow after a kernel that moves them
     effects: list  # the effect names that run in this scene
     ledger: Any  # Ledger (core/host_state.py): next particle id, liquid and gas added; a stage's own: its `state`
     # the step's one read-back (core/step.py, read_back): f(ctx) writes into it before, f(ctx, report) reads after
@@ -40,7 +39,7 @@ class StepContext:
     add_particles: Callable = None  # add_particles(positions, velocities, material, volume, gauge=None) -> slice
     stage: Callable = None  # stage(name) -> the running stage of that effect, or None
     extend: Callable = None  # extend(vel, valid, box=None): extrapolate a face field, walls, on_extended
-    book_outflow: Callable = None  # retire particles a mover marked as gone through an open wall
+    book_outflow: Callable = None  # after a kernel that moves particles: retire those gone through an open wall
     dt_limits: Callable = None  # dt_limits() -> {name: seconds}: every limit on the next step
     region: Any = None  # ActiveRegion: the grid stages' box (core/active_box.py)
     time: float = 0.0  # s, at the start of the step being taken

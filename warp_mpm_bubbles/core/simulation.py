@@ -134,7 +134,7 @@ class Simulation:
         return StepContext(
             scene=self.scene, device=self.device, grid=self.grid, fields=self.fields, particles=self.particles,
             geometry=self.geometry, launcher=self.launcher, stats=SolverStats(), gravity=self.gravity, up=self.up,
-            two_phase=self.two_phase, interface=self.interface, has_gas=self.has_gas, open_walls=self.open_walls,
+            two_phase=self.two_phase, interface=self.interface, has_gas=self.has_gas,
             effects=self.effects, ledger=self.ledger, read_host=self.read_host,
             add_particles=self.add_particles, stage=self.stage, extend=self.extend, book_outflow=self.book_outflow,
             dt_limits=self.dt_limits)

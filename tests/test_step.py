@@ -70,6 +70,9 @@ def test_a_scenes_graph_plan_is_built_on_the_cpu(tmp_path):
     sim = Simulation(scene.validate(), "cpu")
     graph = sim.step_plan(graph=True)
     captured = [r.phases for r in graph if r.captured]
-    assert captured == [("p2g", "after_p2g", "momentum", "classify", "on_cells"), ("face_density",), ("force", "assemble"),
-                        ("before_extend", "extend", "before_g2p", "g2p")]
+    # The gas stage is not graph-safe (it picks kernels from the last read-back): its hooks run
+    # between the graphs; surface tension's force is captured with the assembly.
+    assert captured == [("p2g",), ("momentum", "classify"), ("face_density",), ("force", "assemble"), ("extend",),
+                        ("g2p",)]
+    assert Run(("after_p2g",)) in graph and Run(("before_g2p",)) in graph
     assert [n for r in graph for n in r.phases] == [n for r in sim.step_plan() for n in r.phases]

@@ -287,7 +287,9 @@ class GasStage(Stage):
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
     grid_box = True  # its grid kernels cover ctx.region; outside it the gas arrays hold no gas
-    graph_safe = True
+    # Not graph-safe: its hooks choose kernels on the host from the last read-back (a cavity may
+    # exist, the gauge past SPREAD_GATE) and launch on the gas's own box, which no graph key holds.
+    graph_safe = False
 
     def __init__(self, ctx, settings=None):
         super().__init__(ctx, settings)

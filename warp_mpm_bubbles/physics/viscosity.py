@@ -28,7 +28,7 @@ class ViscosityStage(Stage):
     name = "viscosity"
     limit = "viscous"
     Settings = Viscosity
-    graph_safe = True
+    graph_safe = False  # its force reads the grid's explicit rate on the host (explicit or implicit)
 
     def __init__(self, ctx, settings=None):
         super().__init__(ctx, settings or Viscosity())

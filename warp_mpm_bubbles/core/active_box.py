@@ -1,4 +1,4 @@
-"""The box of the grid that the step's grid stages cover (issue #13: cost in proportion to the liquid).
+"""The box of the grid that the step's grid stages cover (cost in proportion to the liquid, not the domain).
 
 After p2g, one kernel takes the bounding box of the cells that hold an active particle; the host
 reads it (6 ints, the step's one read for it) to size the grid stages' launches. Every grid value

@@ -31,7 +31,7 @@ cell types and face weights change every step. Choices (measured in benchmarks/p
   below PIVOT_TOLERANCE of its diagonal (the constant mode of a closed tank) is dropped, which
   gives a symmetric positive semi-definite pseudo-inverse.
 
-Active box (issue #13): every level works on the bounding box of the cells that can be unknowns,
+Active box (so that cost follows the liquid, not the domain): every level works on the bounding box of the cells that can be unknowns,
 [lo, hi), passed in the Level struct; cells outside it count as outside the arrays. The finest box
 is the fluid cells' bounding box, each coarser one the parents of the finer box, so the hierarchy and
 every unknown are those of the whole-grid V-cycle and the result is bit-identical (red-black colours

@@ -1,7 +1,7 @@
 """Pressure projection: a matrix-free SPD operator and a preconditioned conjugate gradient.
 
 The operator is ``A p = -div(1/rho grad p)`` over fluid cells (empty cells are Dirichlet p = 0 gauge,
-solid faces Neumann), plus, from issue #3 on, a per-cell ``kappa/dt^2`` term for the gas. The CG is
+solid faces Neumann), plus a per-cell ``kappa/dt^2`` term for the gas. The CG is
 hand-written because ``warp.optim.linear.cg`` spends most of its CPU time in its reduction kernel
 (docs/design.md, #cg-on-warp); alpha, beta and the convergence test are computed on the device, with
 no read-back per iteration (PressureSolver). All launches cover the fluid cells' bounding box
@@ -406,7 +406,7 @@ class SolveInfo:
 class PressureSolver:
     """PCG on the fluid cells of one grid; scratch arrays (and multigrid levels) are allocated once.
 
-    Work follows the liquid (issue #13): one pass over the whole grid masks the warm start and finds
+    Work follows the liquid: one pass over the whole grid masks the warm start and finds
     the fluid cells' bounding box on the device; the host reads the box (the solve's one read before
     it iterates, to size the launches) and every other launch covers the box grown by one cell (so
     each fluid cell's face neighbours are in it), at every multigrid level. `active_box=False`

@@ -1,4 +1,4 @@
-"""Sub-grid bubbles (issue #4, item 3; entrainment.py seeds them where splashes trap air).
+"""Sub-grid bubbles (entrainment.py seeds them where splashes trap air).
 
 Sub-grid bubbles are gas particles of phase PHASE_SUBGRID: the core transfers skip them, and this
 stage moves them by buoyancy and drag relative to the liquid's interpolated velocity:

@@ -341,7 +341,7 @@ def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: i
 @wp.kernel(enable_backward=False)
 def split_pairs(pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float), second: wp.array3d(dtype=float),
                 box: Lines):
-    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read,
+    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid phases read,
     over a box of them (core/lines.py)."""
     ti, tj, tk = wp.tid()
     first_cell = line_first(box, ti, tj, tk)

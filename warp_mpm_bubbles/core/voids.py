@@ -293,7 +293,7 @@ class VoidSearch:
 
     def find(self, types, region=None):
         """(types on the host, void cells, their region labels), or None when there is no void.
-        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid stages' box), or
+        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid phases' box), or
         None for the whole grid.
 
         1. Count the covered EMPTY cells (below a fluid or solid cell of their column; without gravity

@@ -110,7 +110,8 @@ def compiler_main(argv: list[str]) -> None:
             targets = [m.name for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")]
         found = kernel_modules([importlib.import_module(name) for name in targets])
         for python_name, modules in sorted(found.items()):
-            result["modules"][python_name] = {name: compile_module(m, out_dir) for name, m in sorted(modules.items())}
+            result["modules"][python_name] = {name: compile_module(m, out_dir)
+                                              for name, m in sorted(modules.items())}
     (out_dir / "result.json").write_text(json.dumps(result, indent=1))
 
 
@@ -230,7 +231,8 @@ def test_the_text_search_sees_decorated_and_factory_kernels(tmp_path):
     (package / "sub").mkdir(parents=True)
     (package / "__init__.py").write_text("")
     (package / "plain.py").write_text("import warp as wp\n\ndef f(): pass\n# @wp.kernel in a comment\n")
-    (package / "decorated.py").write_text("import warp as wp\n\n@wp.kernel(enable_backward=False)\ndef k(): pass\n")
+    (package / "decorated.py").write_text("import warp as wp\n\n@wp.kernel(enable_backward=False)\n"
+                                          "def k(): pass\n")
     (package / "sub" / "factory.py").write_text("import warp as wp\n\ndef make(f):\n    return wp.kernel(f)\n")
     assert modules_defining_kernels_by_text(tmp_path, "pkg") == ["pkg.decorated", "pkg.sub.factory"]
 

@@ -10,11 +10,12 @@ and from stopping the CG a decade or two tighter. In the bubble scenes any such 
 small, moves a few particles by the same amount (it does not shrink with the disturbance: something
 near the interface switches, rather than rounding growing): at worst positions 7.5e-4 of a cell,
 velocities 6.6e-3 of the speed scale U (4.0e-4 as an RMS over the particles), J 9.3e-4; the other
-examples stay near float32's resolution (about 1e-5). The bounds below are 4.5 to 7.5 times the worst. Two steps from the start check that the GPU runs the same
-physics; they do not measure it (the CPU tests do): removing the surface tension exceeds the bounds
-in the four bubble scenes, 10% less gravity in the dam break and three bubble scenes, while a force
-a few percent off, 10% less gravity in the air stone or the plunge, or no tension in the plunge or
-the pouring glass stays inside. A lost or extra particle, or a changed phase, fails exactly.
+examples stay near float32's resolution (about 1e-5). The bounds below are 4.5 to 7.5 times the
+worst. Two steps from the start check that the GPU runs the same physics; they do not measure it
+(the CPU tests do): removing the surface tension exceeds the bounds in the four bubble scenes, 10%
+less gravity in the dam break and three bubble scenes, while a force a few percent off, 10% less
+gravity in the air stone or the plunge, or no tension in the plunge or the pouring glass stays
+inside. A lost or extra particle, or a changed phase, fails exactly.
 """
 
 from __future__ import annotations

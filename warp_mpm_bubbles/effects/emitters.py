@@ -284,7 +284,8 @@ class EmitterStage(Stage):
         if any(isinstance(e, GasInjector) for e in self.emitters) and not draining_walls(scene.domain):
             self.room = room_and_seeded_liquid(scene)[0] * (self.dx if self.dim == 2 else 1.0)
         # Streams whose nozzle is against a closed wall behind it open that wall (effects/nozzle_walls.py).
-        self.walled, self.streaming = walled_nozzles(scene, sim.geometry), []
+        self.walled = walled_nozzles(scene, sim.geometry)
+        self.walled_speed = wp.zeros(len(self.walled), dtype=float, device=sim.device)  # this step's, per stream
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -296,7 +297,7 @@ class EmitterStage(Stage):
         self.on_extended(sim, sim.fields.vel)
 
     def on_extended(self, sim, vel):
-        open_nozzles(sim, self.streaming, vel)
+        open_nozzles(sim, [self.emitters[i] for i in self.walled], self.walled_speed, vel)
 
     def _point(self, v) -> np.ndarray:
         """A scene position as a 3-vector; 2D particles sit mid-slab (z = dx/2) like the seeded ones."""
@@ -312,14 +313,13 @@ class EmitterStage(Stage):
         t = sim.time
         state = sim.host_state["emitters"]
         bubbles, layers = [], []  # this step's, placed together (_release, _deliver)
-        self.streaming = []  # this step's streams whose nozzle opens a wall
+        flowing = set()
         for i, e in enumerate(self.emitters):
             stop = math.inf if e.stop is None else e.stop
             overlap = min(t + dt, stop) - max(t, e.start)
             if overlap <= 0.0:
                 continue
-            if i in self.walled:
-                self.streaming.append(e)
+            flowing.add(i)
             if isinstance(e, LiquidInflow):
                 state[i, 0] += e.speed * overlap
                 while state[i, 0] >= self.spacing:
@@ -333,6 +333,9 @@ class EmitterStage(Stage):
                     state[i, 0] -= 1.0
                     bubbles.append(self._bubble(i, e, int(state[i, 1])))
                     state[i, 1] += 1
+        if self.walled:  # the streams opening a wall flow in this step, or not (a copy, no read)
+            speeds = [self.emitters[i].speed * (i in flowing) for i in self.walled]
+            self.walled_speed.assign(np.array(speeds, np.float32))
         if layers:
             self._deliver(sim, layers)
         if bubbles:
@@ -477,8 +480,8 @@ class EmitterStage(Stage):
         source = np.array([k for _, k in images], np.int32)
         strength = wp.zeros(len(images), dtype=wp.float64, device=sim.device)
         unit = 4.0 / 3.0 * math.pi if self.dim == 3 else math.pi * self.dx
-        sim.launch(push_what_is_there, len(images), [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64),
-                                                     dev(source, wp.int32), strength])
+        sim.launch(push_what_is_there, len(images),
+                   [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64), dev(source, wp.int32), strength])
         sim.launch(make_room, first_new, [dev(np.array([c for c, _ in images], np.float64), wp.vec3d), strength,
                                           dev(np.full(len(images), np.inf), wp.float64),
                                           dev(site[source].astype(np.int32), wp.int32), cells, top, len(images),

@@ -25,11 +25,16 @@ NOZZLE_REACH = 1.0
 
 @wp.kernel
 def nozzle_faces(types: wp.array3d(dtype=wp.int32), geo: GridGeometry, axis: int, centre: wp.vec3,
-                 direction: wp.vec3, radius: float, speed: float, vel: wp.array3d(dtype=float)):
+                 direction: wp.vec3, radius: float, speeds: wp.array(dtype=float), stream: int,
+                 vel: wp.array3d(dtype=float)):
     """The faces between a solid and a fluid-side cell lying behind the nozzle (at most NOZZLE_REACH
     cells upstream of it, the stream flowing away from the solid) take the stream's velocity, in
-    the share of the face the stream covers (a ramp one cell wide across its edge)."""
+    the share of the face the stream covers (a ramp one cell wide across its edge). Its speed is
+    read from speeds[stream] (0 while it does not flow), so a captured graph stays valid."""
     i, j, k = wp.tid()
+    speed = speeds[stream]
+    if speed == 0.0:
+        return
     hi = wp.vec3i(i, j, k)
     solid_lo = is_solid(cell_type_at(types, hi - unit(axis)))
     if solid_lo == is_solid(cell_type_at(types, hi)):
@@ -69,13 +74,14 @@ def walled_nozzles(scene, geometry) -> list[int]:
     return found
 
 
-def open_nozzles(sim, streams, vel):
-    """The wall faces behind these streams' nozzles carry their velocity, in the face field vel."""
-    dim = sim.scene.dim
-    for e in streams:
+def open_nozzles(sim, streams, speeds, vel):
+    """The wall faces behind these streams' nozzles carry their velocity (speeds: this step's, per
+    stream, on the device), in the face field vel."""
+    dim, dx = sim.scene.dim, sim.grid.dx
+    for n, e in enumerate(streams):
         pad = (0.0,) * (3 - dim)
-        centre = wp.vec3(*(tuple(e.center) + ((0.5 * sim.grid.dx,) if dim == 2 else ())))
+        centre = wp.vec3(*(tuple(e.center) + ((0.5 * dx,) if dim == 2 else ())))
         for a in sim.grid.axes:
             sim.launch(nozzle_faces, sim.grid.face_shape(a),
                        [sim.fields.types, sim.geometry, a, centre, wp.vec3(*(tuple(e.direction) + pad)),
-                        float(e.radius), float(e.speed), vel[a]])
+                        float(e.radius), speeds, n, vel[a]])

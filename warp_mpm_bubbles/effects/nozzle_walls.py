@@ -15,6 +15,7 @@ import warp as wp
 
 from ..core.cells import cell_type_at, is_solid, unit
 from ..core.geometry import GridGeometry
+from ..scene.effects import LiquidInflow
 
 wp.set_module_options({"enable_backward": False})
 
@@ -60,8 +61,6 @@ def nozzle_faces(types: wp.array3d(dtype=wp.int32), geo: GridGeometry, axis: int
 def walled_nozzles(scene, geometry) -> list[int]:
     """The streams (emitter indices) whose nozzle lies within NOZZLE_REACH cells of a closed wall of
     the domain behind it."""
-    from ..scene.effects import LiquidInflow
-
     dx, size = scene.domain.dx, scene.domain.size
     found = []
     for i, e in enumerate(scene.emitters):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from cavity import P_ATM, P_G0, RHO, cavity_in_tank, collapse_time
+from benchmarks.cases import P_ATM, P_G0, RHO, cavity_in_tank, collapse_time
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, Sphere
 from warp_mpm_bubbles.core.simulation import Simulation
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from rayleigh_plesset import first_minimum, radius_history
+from benchmarks.cases import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.core.gas_law import cell_compressibility
 from warp_mpm_bubbles.core.grid import FLUID, INTERFACE_SHARP

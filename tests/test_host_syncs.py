@@ -14,7 +14,7 @@ from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
 
-from test_subgrid import splash_scene
+from benchmarks.cases import splash_scene
 
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here

@@ -36,7 +36,7 @@ def liquid_scene(tmp_path):
 
 
 def full_scene(tmp_path):
-    """All eight optional stages (benchmarks/compile_time.py's scene, smaller); conversions every 2 steps."""
+    """All eight optional stages (benchmarks/performance/compile_time.py's scene, smaller); conversions every 2 steps."""
     return Scene(
         domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24),
         materials={"water": Material("water", surface_tension=0.072, viscosity=1.0e-3),

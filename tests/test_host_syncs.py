@@ -14,7 +14,7 @@ from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
 
-from test_subgrid import splash_scene
+from benchmarks.cases import splash_scene
 
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
@@ -36,7 +36,7 @@ def liquid_scene(tmp_path):
 
 
 def full_scene(tmp_path):
-    """All eight optional stages (benchmarks/compile_time.py's scene, smaller); conversions every 2 steps."""
+    """All eight optional stages (benchmarks/performance/compile_time.py's scene, smaller); conversions every 2 steps."""
     return Scene(
         domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24),
         materials={"water": Material("water", surface_tension=0.072, viscosity=1.0e-3),

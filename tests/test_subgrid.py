@@ -8,31 +8,18 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles import Sphere
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.core.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
-from warp_mpm_bubbles.scene.effects import Entrainment, Foam, SubgridBubbles
+from warp_mpm_bubbles.scene.effects import Entrainment, SubgridBubbles
 from warp_mpm_bubbles.core.simulation import Simulation
 
+from benchmarks.cases import L, splash_scene, subgrid_tank as tank
+
 wp.config.quiet = True
-L = 0.1
 AIR = 1  # index of "air" in the scenes' materials
 EFFECT_KERNELS = {"deposit_drag_reaction", "advance_subgrid", "trapped_air", "seed_total", "place_seeds",
                   "flag_candidates", "candidate_count", "pack_candidates"}  # conversions select on the device
-
-
-def tank(tmp_path, dim=2, cells=32, depth=0.09, shapes=(), effects=None, **solver):
-    size = (L,) * dim
-    water = Box("water", min=(0.0,) * dim, max=(L, depth) + (L,) * (dim - 2))
-    return Scene(
-        domain=Domain(size=size, cell_size=L / cells),
-        materials={"water": Material("water", viscosity=solver.pop("viscosity", 0.0)),
-                   "air": Material("air", kind="gas")},
-        shapes=[water, *shapes],
-        solver=SolverSettings(particles_per_cell=4 if dim == 2 else 8, **solver),
-        output=Output(path=str(tmp_path / "s.usdc")),
-        effects={} if effects is None else effects,
-    )
 
 
 def terminal_speed(r, rho_l=1000.0, rho_g=1.2, mu=1.0e-3, g=9.81):
@@ -216,15 +203,6 @@ def test_a_small_resolved_bubble_becomes_one_subgrid_bubble_and_mass_stays_exact
     final = sim.gas_budget()
     assert final["subgrid"] == 0.0 and final["inside"] == 0.0, final  # all of it went to the air
     assert final["vented"] + final["rounding"] == pytest.approx(before["total"], rel=1e-12, abs=0.0)
-
-
-def splash_scene(tmp_path, falling=True, foam=False):
-    """A 2 cm block of water thrown at 2 m/s into a 3 cm pool (or the pool alone, at rest)."""
-    shapes = [Box("water", min=(0.04, 0.045), max=(0.06, 0.065), velocity=(0.0, -2.0))] if falling else []
-    effects = {"subgrid_bubbles": SubgridBubbles(), "entrainment": Entrainment(rate=1000.0, min_speed=0.5)}
-    if foam:
-        effects["foam"] = Foam(lifetime=0.01)
-    return tank(tmp_path, depth=0.03, shapes=shapes, effects=effects)
 
 
 def test_entrainment_seeds_bubbles_in_a_splash_and_none_in_a_resting_tank(tmp_path):

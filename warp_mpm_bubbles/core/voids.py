@@ -1,4 +1,4 @@
-"""Voids: particle-free cells inside the liquid (issue #12; docs/design.md, "Voids").
+"""Voids: particle-free cells inside the liquid (docs/design.md, "Voids").
 
 `classify_cells` calls a cell with no particle and a fill fraction under HOLE_FRACTION EMPTY, which
 the solve reads as a free surface at p = 0. That is right above the water and wrong inside it: an
@@ -296,7 +296,7 @@ class VoidSearch:
 
     def find(self, types, region=None):
         """(types on the host, void cells, their region labels), or None when there is no void.
-        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid stages' box), or
+        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid phases' box), or
         None for the whole grid.
 
         1. Count the covered EMPTY cells (below a fluid or solid cell of their column; without gravity
@@ -367,8 +367,8 @@ class VoidPass:
         # the gas after five diameters instead of 67-73%; tests/test_gas.py). With incompressible
         # gas the correction closes a hole by its own fill, as one medium (volume_correction.cell_excess):
         # cleared to liquid, a hole counted its whole cell as missing on top of its neighbours' share
-        # of the same gap, and holes inside the bubble became liquid cells (issue #12, the 2D
-        # benchmark at 40 cells: velocity jitter 0.0045 cleared, 0.0031 not).
+        # of the same gap, and holes inside the bubble became liquid cells, which made the
+        # bubble's rise speed jitter more.
         gas_kinds = [m for m in sim.scene.materials.values() if m.is_gas] if sim.has_gas else []
         self.compressible = any(m.eos != "incompressible" for m in gas_kinds)
         self.clear_holes = not gas_kinds

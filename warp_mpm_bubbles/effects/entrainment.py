@@ -1,4 +1,4 @@
-"""Entrainment (issue #4, item 3): sub-grid bubbles seeded where a splash traps air.
+"""Entrainment: sub-grid bubbles seeded where a splash traps air.
 
 Entrainment (Ihmsen et al. 2012, trapped-air potential, on grid cells): for a liquid cell with air
 in its 3^dim neighbourhood, I = sum_n W_n |u_cn| (1 - u^_cn . x^_cn) / sum_n W_n over its fluid

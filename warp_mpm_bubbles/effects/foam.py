@@ -1,4 +1,4 @@
-"""Foam at the free surface (issue #4, item 2): gas that reaches open air becomes foam instead of
+"""Foam at the free surface: gas that reaches open air becomes foam instead of
 venting, rides the surface for an exponentially distributed lifetime, then bursts.
 
 Foam particles are the gas particles themselves, relabelled in place (phase PHASE_FOAM, the foam

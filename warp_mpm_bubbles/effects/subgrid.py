@@ -1,4 +1,4 @@
-"""Sub-grid bubbles (issue #4, item 3; entrainment.py seeds them where splashes trap air).
+"""Sub-grid bubbles (entrainment.py seeds them where splashes trap air).
 
 Sub-grid bubbles are gas particles of phase PHASE_SUBGRID: the core transfers skip them, and this
 stage moves them by buoyancy and drag relative to the liquid's interpolated velocity:
@@ -13,7 +13,7 @@ the cell's pressure by the particle's gas law, so bubbles expand as they rise.) 
 implicit: w_new solves w (m + dt k(|w|)) = m (v - u_l) + dt F_b, a scalar root along the right-hand
 side (the left side grows monotonically with |w|), found by bisection: stable at any dt, and at rest
 it is exactly the terminal balance F_b = k(U) U. Two-way: the momentum dt k w that the drag took
-from the bubble goes to the liquid's face velocities in the next step's grid stage, right after
+from the bubble goes to the liquid's face velocities in the next step's grid phase, right after
 u* = p/m + dt g, spread over the faces in proportion to the mass each holds (momentum-exact, lagged
 by one step). The fluid's side is thus explicit, so dt k is capped at the fluid mass the bubble's
 stencil holds (the drag law, its solve and the cap: effects/subgrid_drag.py).

@@ -250,7 +250,7 @@ def gas_cell_expansion(
     """out[slot]: the largest |div u - d| (1/s, the gas's relative volume change rate) over gas cells,
     d the divergence the volume correction asked of the cell (target_div), which is not the gas's
     (gas_volume_rate leaves it out of J too): an incompressible gas's cells move only by d, and
-    counted as expansion it set 515 of 520 steps of a rising bubble (issue #12's 3D tank).
+    counted as expansion it would set the time step of a rising bubble at nearly every step.
     Cavities' cells are not counted (physics/cavity.py: a near vacuum's volume is the room it is left)."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]

@@ -184,7 +184,7 @@ def film_target(
     faster), at most a quarter cell a step. Only gas on the liquid's side of the interface, where the
     smoothed liquid level set the curvature reads is positive, is a film: gas on the bubble's side in
     a cell the interface crosses is the resolved bubble (retracted, it piled into the bubble and left
-    the interface's cells under-filled, 0.92, with holes: issue #12)."""
+    the interface's cells under-filled, with holes)."""
     origin = geo.origin
     dx = geo.dx
     dim = geo.dim

@@ -101,8 +101,9 @@ def test_captured_step_matches_the_step(path):
 
 
 def test_the_captured_step_launches_graphs(monkeypatch):
-    """A water and air scene with surface tension (every stage of it may be captured) really replays
-    graphs, so the comparison above is not of step() with itself."""
+    """A water and air scene with surface tension (its force is captured with the assembly; the gas's
+    hooks, not graph-safe, run between the graphs) really replays graphs, so the comparison above is
+    not of step() with itself."""
     launched = []
     capture_launch = wp.capture_launch
     monkeypatch.setattr(wp, "capture_launch", lambda graph, *a, **k: (launched.append(graph),

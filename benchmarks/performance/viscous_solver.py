@@ -79,7 +79,7 @@ def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None =
     stage = sim.stage("viscosity")
     row = {"case": case, "cells": cells, "solver": solver, "t_end": t_end, "steps": sim.stats.steps,
            "wall_s": round(wall, 2), "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), **stage.counts,
-           "explicit_limit_s": stage.explicit_limit(sim)}
+           "explicit_limit_s": stage.explicit_limit(sim.ctx)}
     if case == "tank":
         gas = p["phase"] == PHASE_GAS
         w = p["volume"][gas]

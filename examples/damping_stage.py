@@ -45,10 +45,10 @@ class DampingStage(Stage):
     name = "damping"
     Settings = Damping
 
-    def force(self, sim, dt: float):
+    def force(self, ctx, dt: float):
         factor = math.exp(-self.settings.rate * dt)
-        for a in sim.grid.axes:
-            sim.launch(scale_faces, sim.grid.face_shape(a), [factor, sim.fields.vel[a]])
+        for a in ctx.grid.axes:
+            ctx.launch(scale_faces, ctx.grid.face_shape(a), [factor, ctx.fields.vel[a]])
 
 
 SCENE = """

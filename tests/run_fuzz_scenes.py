@@ -387,4 +387,21 @@ HARD_SCENES = {
         + '[[colliders]]\ntype = "cylinder"\ncenter = [0.32, 0.096]\nradius = 0.05\nlength = 0.092\naxis = "x"\n'
           '[[colliders]]\ntype = "glass"\ncenter = [0.235, 0.0]\nradius = 0.07\nheight = 0.065\nwall_thickness = 0.023\n'
         + _OUTPUT.format(fps=60.0, frames=3), (0,)),
+    # A stream from a nozzle half a cell under a closed ceiling (scene 87): the ceiling's faces held
+    # the stream's first cell at rest, the solve slowed the stream to 0.7-0.9 of the speed its
+    # layers were laid at, and they piled up under the nozzle (0.79 of the rest volume by frame 2).
+    "nozzle_under_a_closed_ceiling": (_HEADER.format(w=0.06, h=0.06, walls="") + _WATER_BOX.format(w=0.01, h=0.01)
+                                      + '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.03, 0.055]\n'
+                                        'direction = [0.0, -1.0]\nradius = 0.015\nspeed = 1.0\n'
+                                      + _OUTPUT.format(fps=60.0, frames=2), (0,)),
+    # An air stone in the air beside a column of water, under a stream (scene 347: not in the open
+    # air, so its bubbles pushed): each bubble pushed the column 2-4 cm away by its whole volume,
+    # cut off 4 radii out, crowding it onto its unpushed part (0.90 of its rest volume by frame 3).
+    "injector_beside_a_column_under_a_stream": (
+        _HEADER.format(w=0.13, h=0.11, walls="") + '[materials.air]\nkind = "gas"\n' + _WATER_BOX.format(w=0.04, h=0.09)
+        + '[[shapes]]\ntype = "box"\nmaterial = "air"\nmin = [0.0, 0.07]\nmax = [0.13, 0.11]\n'
+          '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.08, 0.105]\ndirection = [0.0, -1.0]\n'
+          'radius = 0.015\nspeed = 0.26\nstop = 0.035\n'
+          '[[emitters]]\ntype = "gas_injector"\nmaterial = "air"\ncenter = [0.066, 0.017]\nrate = 200.0\nradius = 0.012\n'
+        + _OUTPUT.format(fps=30.0, frames=3), (0,)),
 }

@@ -53,7 +53,8 @@ def frame_metrics(sim) -> dict:
     x = p["positions"][liquid][:, :sim.grid.dim]
     flying = ((x < 0.0) | (x > hi)).any(1)
     budget = sim.mass_budget()["liquid"]
-    emitted, inflow = sim.host_state.get("emitters"), sim.host_state.get("inflow_volume")
+    emitters = sim.stage("emitters")
+    emitted, inflow = (emitters.state.progress, emitters.state.inflow) if emitters else (None, None)
     state = hashlib.sha1(p["positions"].tobytes() + p["velocities"].tobytes() + p["ids"].tobytes())
     return {
         "state_sha1": state.hexdigest(),  # the same scene must give the same state (CPU determinism)

@@ -1,9 +1,10 @@
-"""Smoke test of benchmarks/accuracy_vs_time.py: --quick on its cheapest case (the 2D Laplace drop)."""
+"""Smoke test of benchmarks/validation/accuracy_vs_time.py: --quick on its cheapest case (the 2D Laplace drop)."""
 
 import csv
 import math
 
-from benchmark_script import load_benchmark
+from benchmarks.validation import accuracy_vs_time
+from benchmarks.validation.accuracy_cases import R0
 
 EXPECTED_COLUMNS = [
     "case", "metric", "setting", "value", "is_default", "run_id", "batch", "quality", "resolution", "resolution_unit",
@@ -12,14 +13,11 @@ EXPECTED_COLUMNS = [
 ]
 
 
-def _load_harness():
-    return load_benchmark("accuracy_vs_time")
-
-
 def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):
-    harness = _load_harness()
-    assert harness.main(["--quick", "--cases", "laplace", "--out-dir", str(tmp_path), "--no-plot"]) == 0
-    with open(tmp_path / "accuracy_vs_time.csv", newline="") as f:
+    study = accuracy_vs_time
+    assert study.main(["--quick", "--cases", "laplace", "--out", str(tmp_path), "--no-plot"]) == 0
+    stem = tmp_path / "accuracy_vs_time" / "cpu_quick"  # results/<benchmark>/<device>[_quick]
+    with open(stem.with_suffix(".csv"), newline="") as f:
         reader = csv.DictReader(f)
         assert reader.fieldnames == EXPECTED_COLUMNS
         rows = list(reader)
@@ -32,14 +30,14 @@ def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):
         assert float(r["wall_s"]) > 0.0 and int(r["steps"]) > 0, r
     # the quick resolution levels (4 and 6 cells per radius) bound the Laplace jump within 15%
     assert max(float(r["error"]) for r in rows if r["setting"] == "resolution") < 0.15
-    text = (tmp_path / "accuracy_vs_time.md").read_text()
+    text = stem.with_suffix(".md").read_text()
     assert "Convergence with resolution" in text and "cpu" in text
-    assert "| laplace: pressure_jump | preview |" in (tmp_path / "presets.md").read_text()
+    assert "| laplace: pressure_jump | preview |" in (tmp_path / "accuracy_vs_time" / "cpu_quick_presets.md").read_text()
 
     # --only presets reruns the quality and seed rows and keeps the others from the saved JSON
-    assert harness.main(["--quick", "--cases", "laplace", "--out-dir", str(tmp_path), "--no-plot",
+    assert study.main(["--quick", "--cases", "laplace", "--out", str(tmp_path), "--no-plot",
                          "--only", "presets"]) == 0
-    with open(tmp_path / "accuracy_vs_time.csv", newline="") as f:
+    with open(stem.with_suffix(".csv"), newline="") as f:
         merged = list(csv.DictReader(f))
     assert len(merged) == len(rows)
     assert {r["batch"] for r in merged if r["setting"] in ("quality", "seed")} == {"1"}
@@ -48,12 +46,10 @@ def test_quick_laplace_writes_csv_with_finite_errors(tmp_path):
 
 
 def test_presets_apply_through_with_quality_and_refine_the_grid(tmp_path):
-    harness = _load_harness()
-    case = harness.CASES["laplace"]
-    scene = harness.build_scene(case, {"quality": "reference", "resolution": 8}, tmp_path)
+    study = accuracy_vs_time
+    case = study.CASES["laplace"]
+    scene = study.build_scene(case, {"quality": "reference", "resolution": 8}, tmp_path)
     assert scene.solver.refine == 2 and scene.solver.cfl == 0.25
-    from accuracy_cases import R0  # the study's cases module, on sys.path once the harness is loaded
-
     assert math.isclose(scene.domain.dx, R0 / 16)
-    production = harness.build_scene(case, {"quality": "production", "resolution": 8, "cfl": 1.0}, tmp_path)
+    production = study.build_scene(case, {"quality": "production", "resolution": 8, "cfl": 1.0}, tmp_path)
     assert production.validate().solver.refine == 1 and production.solver.cfl == 1.0

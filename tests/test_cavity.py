@@ -1,6 +1,6 @@
 """A near-vacuum cavity collapses on Rayleigh's time and the water stays water (issue #12 item 7;
 physics/cavity.py, docs/design.md#cavities). Reference: the cylindrical Rayleigh collapse by RK4
-(tests/cavity.py). Numbers: benchmarks/cavity_collapse.py (results/cavity_collapse.md)."""
+(benchmarks/cases.py). Numbers: benchmarks/validation/cavity_collapse.py (benchmarks/results/cavity_collapse/cpu.md)."""
 
 import math
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from cavity import P_ATM, P_G0, RHO, cavity_in_tank, collapse_time
+from benchmarks.cases import P_ATM, P_G0, RHO, cavity_in_tank, collapse_time
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, Sphere
 from warp_mpm_bubbles.core.simulation import Simulation
 
@@ -16,7 +16,7 @@ wp.config.quiet = True
 CAVITY_KERNELS = ("count_cavity_gas", "mark_cavities", "release_cavity_faces", "cavity_room", "cavity_gas_J")
 
 # Measured (seed 0; seeds 1-3 in brackets), the collapse time's error against RK4, at R = R0/2 and
-# R0/4, by the gas's volume and by the liquid's flux (tests/cavity.py):
+# R0/4, by the gas's volume and by the liquid's flux (benchmarks/cases.py):
 #   cells/R0          8                         16                        32
 #   gas,  R0/2   -2.30% [-1.83 -1.69 -1.75]   -0.59% [-0.59 -0.61 -0.65]   -0.21%
 #   gas,  R0/4   -0.25% [-0.11 +0.04 -0.02]   +0.12% [+0.16 +0.10 +0.16]   +0.16%
@@ -113,7 +113,7 @@ def test_ordinary_gas_never_runs_the_cavity_kernels(tmp_path):
     first = {k: sim.launches[k] for k in CAVITY_KERNELS}
     for _ in range(3):
         sim.step(sim.stable_dt())
-    assert sim.host_state["gas_cavity"][0] == 0.0
+    assert sim.stage("gas").state.cavity == 0.0
     assert {k: sim.launches[k] for k in CAVITY_KERNELS} == first
     assert not np.any(sim.fields.cavity.numpy())
     assert not np.any(sim.particles.numpy("cavity_gas"))
@@ -121,7 +121,7 @@ def test_ordinary_gas_never_runs_the_cavity_kernels(tmp_path):
 
 def test_a_checkpoint_from_before_the_cavity_model_resumes(tmp_path):
     """An older checkpoint has no per-particle cavity_gas: it loads with the field's fresh default (0),
-    as an older checkpoint's missing host_state does, and the run goes on (no KeyError)."""
+    as an older checkpoint's missing host values do, and the run goes on (no KeyError)."""
     from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 
     scene = Scene(domain=Domain(size=(0.04, 0.04), cell_size=0.04 / 16),

@@ -1,15 +1,16 @@
-"""The convergence study's estimators (benchmarks/convergence.py; docs/convergence.md, "The metrics"):
+"""The convergence study's estimators (benchmarks/validation/convergence.py; docs/convergence.md, "The metrics"):
 the windowed rise speed, an extremum's time and spread, and the verdicts. Synthetic series, no
 simulation: the study's conclusions rest on these functions reading a known answer right."""
 
 import numpy as np
 import pytest
-from benchmark_script import load_benchmark
+
+from benchmarks.validation import convergence
 
 
 @pytest.fixture(scope="module")
 def study():
-    return load_benchmark("convergence")
+    return convergence
 
 
 T = np.arange(0.0, 3.0 + 1e-9, 0.002)  # a step's spacing of the 2D runs

@@ -78,7 +78,7 @@ def test_runs_with_emitters_resume_to_the_same_state(tmp_path):
     assert straight.num_particles > first.num_particles  # both emitters kept emitting after the save
     for key in ("positions", "velocities", "material", "mass"):
         np.testing.assert_array_equal(a[key], b[key])
-    np.testing.assert_array_equal(straight.host_state["inflow_volume"], resumed.host_state["inflow_volume"])
+    np.testing.assert_array_equal(straight.stage("emitters").state.inflow, resumed.stage("emitters").state.inflow)
 
 
 def test_a_submerged_nozzle_delivers_what_the_water_lets_in(tmp_path):
@@ -90,17 +90,17 @@ def test_a_submerged_nozzle_delivers_what_the_water_lets_in(tmp_path):
                emitters=[LiquidInflow("water", (0.03, 0.04), (0.0, -1.0), 0.015, 3.0)],
                output=Output(path=str(tmp_path / "s.usdc"), fps=30))
     sim = Simulation(sc, "cpu")
-    seeded = float(sim.host_state["liquid_added"][0])
+    seeded = sim.ledger.liquid_added
     while sim.time < 0.1:
         sim.advance_to(sim.time + 0.01)
         rest = sim.particles_numpy()["mass"].astype(np.float64).sum() / 1000.0
         assert sim.liquid_volume() >= 0.9 * rest, (sim.time, sim.liquid_volume() / rest)
-    owed, delivered = sim.host_state["inflow_volume"][0]
+    owed, delivered = sim.stage("emitters").state.inflow[0]
     h = DX / sim.scene.solver.particles_per_cell ** 0.5
-    assert owed == pytest.approx(sim.host_state["emitters"][0, 1] * 2 * 0.015 * h * DX)  # every layer owed
+    assert owed == pytest.approx(sim.stage("emitters").state.progress[0, 1] * 2 * 0.015 * h * DX)  # every layer owed
     assert 0.0 < delivered < 0.5 * owed
     # The mass ledger counts only what entered (float32 particle masses).
-    assert float(sim.host_state["liquid_added"][0]) - seeded == pytest.approx(1000.0 * delivered, rel=1e-5)
+    assert sim.ledger.liquid_added - seeded == pytest.approx(1000.0 * delivered, rel=1e-5)
     text = summary(RunResult(sim, str(tmp_path / "s.usdc"), 3, 1.0))
     assert f"[emitters.0] delivered {100 * delivered / owed:.0f}% of its stream" in text
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from rayleigh_plesset import first_minimum, radius_history
+from benchmarks.cases import first_minimum, radius_history
 from warp_mpm_bubbles import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.core.gas_law import cell_compressibility
 from warp_mpm_bubbles.core.grid import FLUID, INTERFACE_SHARP
@@ -63,7 +63,7 @@ def test_bubble_breathes_at_the_2d_minnaert_frequency(breathing):
     # Reference: omega0^2 = 2 p0 / (rho R0^2 ln(Rinf/R0)) (isothermal, sigma = 0) = 178.6 Hz.
     # Measured -1.5% at 8 cells per radius (2026-12-05; -1.52% just before a gas cell's compressibility
     # took the gas's share of the cell, -0.9% before the volume correction became a rate; seed spread
-    # about 1%, docs/accuracy_vs_time.md); it was
+    # about 1%, benchmarks/results/accuracy_vs_time/cpu.md); it was
     # -7.6% before the gas took its cells' volume change (update_gas_J), which the old 10% bound
     # allowed. 3% bounds the measurement with the seed noise.
     up = upward_crossings(breathing["t"], breathing["V"])
@@ -141,7 +141,7 @@ def test_rising_bubble_gas_mass_is_exactly_accounted_for(rising):
 def test_a_bubble_rising_five_diameters_stays_a_bubble_without_water_inside(tmp_path):
     # Issue #3's bar: the default (sharp interface, the liquid reading its own velocity field) keeps
     # the liquid found at least one cell deep inside the gas under 1% of the gas volume until the
-    # bubble has risen five diameters. 2D, 6 cells per radius (CI size; benchmarks/rising_bubble_leak.py
+    # bubble has risen five diameters. 2D, 6 cells per radius (CI size; benchmarks/validation/rising_bubble_leak.py
     # runs 8 and 3D): measured 0.00% in every frame at both, where one shared velocity field peaked
     # at 1.13% (6 cells) and 2.31% (8 cells), and the published baseline broke the bubble up.
     # And it stays a bubble: with gas films retracting (the default) the largest bubble holds 77.1%
@@ -193,7 +193,7 @@ def test_a_3d_cap_bubble_rises_at_the_davies_taylor_speed(tmp_path):
     # cap of the same volume (a sphere at rest is pierced by its wake first), 4 cells per radius
     # (CI size), speed of the gas centroid from 0.1 s (past the start-up) to 0.2 s.
     # Measured -0.4% here (2026-12-05; -2% before a gas cell's compressibility took the gas's share
-    # of the cell), and by benchmarks/rising_bubble_leak.py --dim 3 --shape cap over five diameters
+    # of the cell), and by benchmarks/validation/rising_bubble_leak.py --dim 3 --shape cap over five diameters
     # -8% at 5 cells per radius and +5% at 7: the bound, 15%, covers that spread with the wall
     # factor's own scatter. It stays one bubble meanwhile (largest 69% at 0.2 s; 66% before) with no
     # water inside (0.00%).

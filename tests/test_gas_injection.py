@@ -63,10 +63,10 @@ def test_bubbles_released_into_air_join_it(tmp_path, room_read):
     seeded = sim.gas_budget()
     n0 = int(gas(sim)[1].sum())
     if not room_read:  # what the first step's measures say: no gas below ambient, no cavity
-        sim.host_state["gas_gauge"][:] = 0.0
-        sim.host_state["gas_cavity"][:] = 0.0
+        sim.stage("gas").state.gauge = 0.0
+        sim.stage("gas").state.cavity = 0.0
     with sim.count_host_reads() as reads:
-        sim.stage("emitters").begin_step(sim, 3.5e-3)  # three bubbles released, alone: nothing else vents
+        sim.stage("emitters").begin_step(sim.ctx, 3.5e-3)  # three bubbles released, alone: nothing else vents
     assert reads.by_module.get("effects.emitters", 0) == int(room_read)
     budget = sim.gas_budget()
     released = 3 * RHO_AIR * math.pi * r * r * DX  # disks through the 2D slab
@@ -83,7 +83,7 @@ def test_a_2d_bubble_is_a_disk_through_the_slab_subgrid_or_resolved(tmp_path):
     pi r^2 dx (it held the sphere's 4/3 pi r^3 before, 0.8 times the resolved bubble's disk)."""
     r = 0.006
     sim = simulation(tmp_path, water(0.08) + injector((0.05, 0.03), 1000.0, r) + "[effects.subgrid_bubbles]\n")
-    sim.stage("emitters").begin_step(sim, 1.5e-3)  # one bubble due
+    sim.stage("emitters").begin_step(sim.ctx, 1.5e-3)  # one bubble due
     p, is_gas = gas(sim)
     assert is_gas.sum() == 1 and p["phase"][is_gas][0] == PHASE_SUBGRID
     rest = float(p["mass"][is_gas].astype(np.float64).sum()) / RHO_AIR
@@ -99,7 +99,7 @@ def test_a_bubble_released_in_water_pushes_the_water_aside(tmp_path):
     box = 0.1 * 0.1 * DX
     p0 = sim.particles_numpy()
     rest0 = float(p0["mass"][p0["phase"] == PHASE_LIQUID].astype(np.float64).sum())
-    sim.stage("emitters").begin_step(sim, 1e-3)  # the release alone, before anything moves
+    sim.stage("emitters").begin_step(sim.ctx, 1e-3)  # the release alone, before anything moves
     p = sim.particles_numpy()
     liquid = p["phase"] == PHASE_LIQUID
     distance = np.linalg.norm(p["positions"][liquid, :2] - centre, axis=1)
@@ -160,7 +160,7 @@ def test_an_open_wall_lets_the_water_make_room(tmp_path):
     rest of the run goes on."""
     sim = simulation(tmp_path, water(0.1) + injector((0.08, 0.03), 1000.0, 0.012),
                      walls='walls = { x_max = "open" }')
-    sim.stage("emitters").begin_step(sim, 1.5e-3)  # one bubble, released alone
+    sim.stage("emitters").begin_step(sim.ctx, 1.5e-3)  # one bubble, released alone
     left = sim.mass_budget()["liquid"]["left"]
     assert left > 0.0
     x = sim.particles_numpy()["positions"]

@@ -14,7 +14,7 @@ from warp_mpm_bubbles.effects.subgrid import CANDIDATE_COLUMNS
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.scene.effects import Collider, Entrainment, Foam, GasInjector, LiquidInflow, SubgridBubbles
 
-from test_subgrid import splash_scene
+from benchmarks.cases import splash_scene
 
 wp.config.quiet = True
 SOLVER_MODULES = ("core.pressure", "core.multigrid")  # CG: the convergence work's (branch active), bounded here
@@ -36,7 +36,7 @@ def liquid_scene(tmp_path):
 
 
 def full_scene(tmp_path):
-    """All eight optional stages (benchmarks/compile_time.py's scene, smaller); conversions every 2 steps."""
+    """All eight optional stages (benchmarks/performance/compile_time.py's scene, smaller); conversions every 2 steps."""
     return Scene(
         domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 24),
         materials={"water": Material("water", surface_tension=0.072, viscosity=1.0e-3),
@@ -81,7 +81,7 @@ def test_liquid_only_step_reads_two_small_arrays_besides_the_solver(tmp_path):
         assert other == {"core.simulation": STEP_READS, "core.active_box": 1}
         assert reads.elements["core.simulation"] == step_elements(sim)
         assert set(reads.by_function) - {(m, f) for m, f in reads.by_function if m in SOLVER_MODULES} == {
-            ("core.simulation", "_solve_pressure"), ("core.simulation", "_end_step"), ("core.active_box", "update"),
+            ("core.simulation", "_phase_solve"), ("core.simulation", "_phase_read_back"), ("core.active_box", "update"),
             ("core.voids", "find")}
         assert_solver_within_bound(reads, iterations, solves)
 
@@ -149,7 +149,7 @@ def test_full_effects_step_reads_nothing_per_stage_but_conversions_candidates(tm
 def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_path):
     sims = [Simulation(splash_scene(tmp_path), "cpu") for _ in range(2)]
     roomy, tight = sims
-    tight.host_state["entrainment_capacity"][:] = 1  # one slot: the first step seeding two overflows
+    tight.stage("entrainment").state.capacity = 1  # one slot: the first step seeding two overflows
     new = 0
     while new < 2:  # in lock step: identical until that step
         n0, seeded0 = roomy.num_particles, roomy.stage("entrainment").seeded
@@ -158,10 +158,10 @@ def test_entrained_seeds_settle_exactly_and_overflow_joins_at_the_read_back(tmp_
         new = roomy.stage("entrainment").seeded - seeded0
         assert tight.stage("entrainment").seeded == roomy.stage("entrainment").seeded
     assert tight.stage("entrainment").overflows == 1 and roomy.stage("entrainment").overflows == 0
-    assert tight.host_state["entrainment_capacity"][0] == 2 * new
+    assert tight.stage("entrainment").state.capacity == 2 * new
     for sim in sims:
         p = sim.particles
-        assert sim.num_particles == n0 + new and sim.host_state["next_id"][0] == n0 + new
+        assert sim.num_particles == n0 + new and sim.ledger.next_id == n0 + new
         assert np.array_equal(p.numpy("ids")[n0:], np.arange(n0, n0 + new))
         assert (p.numpy("phase")[n0:] == PHASE_SUBGRID).all() and (p.numpy("active")[n0:] == 1).all()
         # Beyond the count the arrays stay zero: the provisional slots were never written.
@@ -214,12 +214,12 @@ CUDA = wp.is_cuda_available()
 
 @pytest.mark.skipif(not CUDA, reason="CUDA graphs need a GPU (none here: this test has not run yet)")
 def test_step_graph_replays_the_step_on_a_gpu(tmp_path):
-    # A fixed dt, so the two captured stretches replay from the second step on. GPU atomics sum
-    # in any order: the same state to float32 round-off, the same launches.
+    # A fixed dt, so the captured stretches (step_plan(graph=True)) replay while the grid box holds.
+    # GPU atomics sum in any order: the same state to float32 round-off, the same launches.
     a, b = (Simulation(liquid_scene(tmp_path), "cuda:0") for _ in range(2))
     for _ in range(10):
         a.step(5.0e-4)
         b.step_graph(5.0e-4)
-    assert len(b._graphs) == 2 and a.launches == b.launches
+    assert b._graphs and a.launches == b.launches
     np.testing.assert_allclose(b.particles.numpy("x"), a.particles.numpy("x"), rtol=0, atol=1e-6)
     np.testing.assert_allclose(b.particles.numpy("v"), a.particles.numpy("v"), rtol=0, atol=1e-4)

@@ -1,6 +1,6 @@
 """Open walls are outflows: what crosses one leaves the simulation, booked in the mass budget; liquid
 thrown through an open top falls back in. Physics with an answer: a tank draining through a floor
-slot at Torricelli's speed (benchmarks/torricelli.py), converging with the grid."""
+slot at Torricelli's speed (benchmarks/validation/torricelli.py), converging with the grid."""
 
 import math
 
@@ -10,7 +10,7 @@ import pytest
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene
 from warp_mpm_bubbles.core.simulation import Simulation
 
-from benchmark_script import load_benchmark
+from benchmarks.validation import torricelli as torricelli_study
 
 G = 9.81
 WATER = {"water": Material("water")}
@@ -18,14 +18,13 @@ WATER = {"water": Material("water")}
 
 @pytest.fixture(scope="module")
 def torricelli():
-    bench = load_benchmark("torricelli")
-    return bench, [bench.drain(dx) for dx in (0.02, 0.01, 0.005)]
+    return torricelli_study, [torricelli_study.drain(dx) for dx in (0.02, 0.01, 0.005)]
 
 
 def test_a_draining_tank_jets_at_torricelli_speed_converging(torricelli):
     # Measured (2026-12-07): Cv 0.8226 / 0.9203 / 0.9637 at 2 / 4 / 8 cells across the slot; the
     # errors against Torricelli (Cv = 1) shrink at order 1.15 and 1.15 (16 cells: 0.9899, order 1.85;
-    # python benchmarks/torricelli.py). The finest Cv is deterministic on the CPU: pinned to 0.8%
+    # python -m benchmarks.validation.torricelli). The finest Cv is deterministic on the CPU: pinned to 0.8%
     # either side, which a 3% error in gravity (1.4% in Cv) leaves.
     _, runs = torricelli
     cv = [r["cv"] for r in runs]
@@ -165,7 +164,7 @@ def test_subgrid_bubbles_carried_through_an_open_wall_are_booked(tmp_path):
     bubble = np.float32(1.2 * math.pi * radius**2 * 0.005)  # air at ambient: a 2D bubble is a disk through the slab
     for _ in range(4):
         sim.advance_frame()
-        released = int(np.asarray(sim.host_state["emitters"])[0, 1])
+        released = int(sim.stage("emitters").state.progress[0, 1])
         gas = sim.gas_budget()
         assert gas["total"] == pytest.approx(released * float(bubble), rel=1e-6)
     held = ((sim.particles.numpy("phase") == PHASE_SUBGRID) & (sim.particles.numpy("active") == 1)).sum()

@@ -208,7 +208,7 @@ def test_multigrid_is_symmetric_positive_definite(dim, interior, surface):
 # measured with 1 and 2 threads (bit-identical solutions: core/threads.py) and every box is over
 # threads.SPLIT_CELLS cells, so the 2-thread run really splits its launches. Margin: the relative
 # residual is at least 1.45x below tol at the counted iteration and 1.45x above it one iteration
-# earlier, so float rounding cannot move a count. Mutants measured (benchmarks/mutation_score.py):
+# earlier, so float rounding cannot move a count. Mutants measured (benchmarks/test_power/mutation_score.py):
 # smoother weight 0.9 adds an iteration to all but the 2D closed tank; 1.03 saves one in the 3D
 # closed tank and the 3D bubble, 0.97 costs one in the 3D free surface. A deliberate change of the
 # smoother, transfers or coarse operators moves these counts: re-measure them and say why in the commit.

@@ -1,7 +1,7 @@
 """The state at a time does not depend on the frame rate or the step (issue #12): the volume
 correction is a rate ([solver].volume_relaxation_time, or the cell over
 [solver].volume_correction_speed, whose drift converges with the grid), bounded, and the step knows the gas
-("gas_expansion"). Numbers: benchmarks/rate_invariance.py (before/after in docs/design.md §3.3, §7)."""
+("gas_expansion"). Numbers: benchmarks/validation/rate_invariance.py (before/after in docs/design.md §3.3, §7)."""
 
 import math
 

@@ -13,7 +13,8 @@ import warp as wp
 from scenes import tank_2d
 from warp_mpm_bubbles import Material, Scene, SceneError, Sphere
 from warp_mpm_bubbles.core.simulation import Simulation
-from warp_mpm_bubbles.core.stage import BUILTIN_STAGES, STEP_ORDER, Stage, register_stage
+from warp_mpm_bubbles.core.stage import Stage, register_stage
+from warp_mpm_bubbles.stages import BUILTIN_STAGES, STEP_ORDER
 
 wp.config.quiet = True
 EXAMPLE = pathlib.Path(__file__).parents[1] / "examples" / "damping_stage.py"
@@ -108,3 +109,31 @@ def test_stages_share_hooks_in_step_order(tmp_path):
 
     assert set(limits) <= set(STEP_FIXES)  # the step guard names each limit's fix
     assert np.isfinite(sim.particles_numpy()["positions"]).all()
+
+
+def test_the_core_imports_nothing_above_it():
+    # The core (the step, the stage protocol and registry) is the lowest layer: the package tells
+    # it the built-in stages (warp_mpm_bubbles/stages.py); no import in it, at the top or inside a
+    # function, reaches the scene, io, effects or physics, and no module path names them.
+    import ast
+
+    core = pathlib.Path(__file__).parents[1] / "warp_mpm_bubbles" / "core"
+    above = ("scene", "io", "effects", "physics", "stages", "cli", "diagnostics")
+    found = []
+    for path in sorted(core.glob("*.py")):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.ImportFrom):
+                names = [("." * node.level) + (node.module or "")] + [
+                    f"{'.' * node.level}{a.name}" for a in node.names if not node.module]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                names = [node.value] if node.value.startswith("warp_mpm_bubbles.") else []
+            for name in names:
+                parts = name.lstrip(".").split(".")
+                if name.startswith("..") and parts[0] in above or (
+                        parts[0] == "warp_mpm_bubbles" and len(parts) > 1 and parts[1] in above):
+                    found.append(f"{path.name}:{node.lineno}: {name}")
+    assert found == []

@@ -2,36 +2,24 @@
 resolved gas, and entrainment (issue #4, item 3), on Warp's CPU device."""
 
 import math
+import re
 
 import numpy as np
 import pytest
 import warp as wp
 
-from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
+from warp_mpm_bubbles import Sphere
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 from warp_mpm_bubbles.core.grid import PHASE_FOAM, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
-from warp_mpm_bubbles.scene.effects import Entrainment, Foam, SubgridBubbles
+from warp_mpm_bubbles.scene.effects import Entrainment, SubgridBubbles
 from warp_mpm_bubbles.core.simulation import Simulation
 
+from benchmarks.cases import L, splash_scene, subgrid_tank as tank
+
 wp.config.quiet = True
-L = 0.1
 AIR = 1  # index of "air" in the scenes' materials
 EFFECT_KERNELS = {"deposit_drag_reaction", "advance_subgrid", "trapped_air", "seed_total", "place_seeds",
                   "flag_candidates", "candidate_count", "pack_candidates"}  # conversions select on the device
-
-
-def tank(tmp_path, dim=2, cells=32, depth=0.09, shapes=(), effects=None, **solver):
-    size = (L,) * dim
-    water = Box("water", min=(0.0,) * dim, max=(L, depth) + (L,) * (dim - 2))
-    return Scene(
-        domain=Domain(size=size, cell_size=L / cells),
-        materials={"water": Material("water", viscosity=solver.pop("viscosity", 0.0)),
-                   "air": Material("air", kind="gas")},
-        shapes=[water, *shapes],
-        solver=SolverSettings(particles_per_cell=4 if dim == 2 else 8, **solver),
-        output=Output(path=str(tmp_path / "s.usdc")),
-        effects={} if effects is None else effects,
-    )
 
 
 def terminal_speed(r, rho_l=1000.0, rho_g=1.2, mu=1.0e-3, g=9.81):
@@ -87,7 +75,7 @@ def test_a_bubble_rises_at_its_drag_law_terminal_speed_3d(tmp_path):
     # the liquid around it upward (two-way), which adds to its rise: measured +0.09% at 16^3. Bound 0.5%.
     sim = Simulation(tank(tmp_path, dim=3, cells=16, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
     r0 = 5.0e-4
-    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.05, 0.01, 0.05]]), np.array([r0]), np.zeros((1, 3)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     window = t >= 0.1  # the drag relaxes in m_eff / k ~ 6 ms; the co-flow takes a little longer
     speed = np.polyfit(t[window], y[window], 1)[0]
@@ -106,7 +94,7 @@ def test_large_steps_stay_stable_and_the_drag_uses_the_liquids_viscosity(tmp_pat
     scene = tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}, cfl=2.0, viscosity=2.0e-3)
     sim = Simulation(scene, "cpu")
     r0 = 5.0e-4
-    i = sim.stage("subgrid_bubbles").add_bubbles(sim, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
+    i = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.05, 0.01]]), np.array([r0]), np.zeros((1, 2)), AIR).start
     t, y, J, u_l = rise(sim, i, 0.4)
     assert max(sim.stats.dt_history) > 0.015
     window = t >= 0.1
@@ -128,7 +116,7 @@ def test_a_bubble_where_the_grid_holds_next_to_no_fluid_drags_it_no_faster_than_
     # bubble keeps the rest of its momentum, and the fluid's faces gain J exactly.
     sim = Simulation(tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles(convert_every=10**6)}), "cpu")
     stage, f, p = sim.stage("subgrid_bubbles"), sim.fields, sim.particles
-    i = stage.add_bubbles(sim, np.array([[0.05, 0.05]]), np.array([0.5e-3]), np.zeros((1, 2)), AIR).start
+    i = stage.add_bubbles(sim.ctx, np.array([[0.05, 0.05]]), np.array([0.5e-3]), np.zeros((1, 2)), AIR).start
     dt = 1.0e-5
     sim.step(dt)  # the grid's types, phases and pressure: the bubble sits in the water
     m0 = 5.0e-14
@@ -137,13 +125,13 @@ def test_a_bubble_where_the_grid_holds_next_to_no_fluid_drags_it_no_faster_than_
         f.vel[a].zero_()
     v0 = np.array([-100.0, 0.0, 0.0], np.float32)
     p.v[i : i + 1].assign(v0[None])
-    stage.after_g2p(sim, dt)
+    stage.after_g2p(sim.ctx, dt)
     v1, J = p.v.numpy()[i].astype(np.float64), p.subgrid_impulse.numpy()[i].astype(np.float64)
     assert J[0] == pytest.approx(m0 * v1[0], rel=1e-5, abs=0.0)  # J = M w, w = v - u_l, u_l = 0
     # The bubble (m_eff 2.6e-7 kg) keeps its momentum but J = 5e-12 kg m/s (below float32's step at 100 m/s).
     assert v1[0] == pytest.approx(v0[0], rel=1e-6)
     before = [a.numpy().astype(np.float64) for a in f.vel]
-    stage.on_momentum(sim, dt)  # the next step's grid takes the reaction
+    stage.on_momentum(sim.ctx, dt)  # the next step's grid takes the reaction
     gained = [a.numpy().astype(np.float64) - b for a, b in zip(f.vel, before)]
     assert np.abs(gained[0]).max() <= abs(v1[0])  # no face dragged past the bubble (was 2e8 m/s)
     assert m0 * gained[0].sum() == pytest.approx(J[0], rel=1e-4, abs=0.0)  # momentum exact
@@ -161,7 +149,7 @@ def test_gathered_subgrid_bubbles_become_resolved_gas_with_their_mass(tmp_path):
     dx = sim.grid.dx
     rng = np.random.default_rng(1)
     pos = np.array([0.05, 0.04]) + rng.uniform(-dx, dx, (40, 2))
-    sub = sim.stage("subgrid_bubbles").add_bubbles(sim, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
+    sub = sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, pos, np.full(40, 1.0e-3), np.zeros((40, 2)), AIR)
     before, _ = budget_parts(sim)
     n_before = sim.num_particles
     sub_ids = sim.particles.numpy("ids")[sub].copy()  # the step sorts the particles by cell: follow ids
@@ -215,15 +203,6 @@ def test_a_small_resolved_bubble_becomes_one_subgrid_bubble_and_mass_stays_exact
     final = sim.gas_budget()
     assert final["subgrid"] == 0.0 and final["inside"] == 0.0, final  # all of it went to the air
     assert final["vented"] + final["rounding"] == pytest.approx(before["total"], rel=1e-12, abs=0.0)
-
-
-def splash_scene(tmp_path, falling=True, foam=False):
-    """A 2 cm block of water thrown at 2 m/s into a 3 cm pool (or the pool alone, at rest)."""
-    shapes = [Box("water", min=(0.04, 0.045), max=(0.06, 0.065), velocity=(0.0, -2.0))] if falling else []
-    effects = {"subgrid_bubbles": SubgridBubbles(), "entrainment": Entrainment(rate=1000.0, min_speed=0.5)}
-    if foam:
-        effects["foam"] = Foam(lifetime=0.01)
-    return tank(tmp_path, depth=0.03, shapes=shapes, effects=effects)
 
 
 def test_entrainment_seeds_bubbles_in_a_splash_and_none_in_a_resting_tank(tmp_path):
@@ -303,3 +282,25 @@ def test_resume_from_a_checkpoint_repeats_the_run(tmp_path):
     assert b.num_particles == n and b.gas_budget() == a.gas_budget()
     for name in ("x", "v", "phase", "active", "subgrid_impulse", "foam_life"):
         assert np.array_equal(a.particles.numpy(name), b.particles.numpy(name)), name
+
+
+def test_the_output_gives_sub_grid_bubbles_their_own_radius_and_the_summary_their_gas(tmp_path):
+    # The stage reports its own output (Stage.output_radii, gas_held): io/ names no effect. Bubbles
+    # of two sizes among the liquid: each written with the radius of its own volume, the liquid with
+    # the output radius; the summary's gas line gives the bubbles' share.
+    from warp_mpm_bubbles.core.grid import sphere_radius
+    from warp_mpm_bubbles.io.runner import RunResult, output_radii, summary
+
+    sim = Simulation(tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
+    plain = Simulation(tank(tmp_path), "cpu")
+    radii = np.array([4.0e-4, 7.0e-4])
+    sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.03, 0.02], [0.06, 0.04]]), radii, np.zeros((2, 2)), AIR)
+    p = sim.particles_numpy()
+    written = output_radii(sim, p, 0.001)
+    bubbles = p["phase"] == PHASE_SUBGRID
+    assert bubbles.sum() == 2 and np.all(written[~bubbles] == 0.001)
+    np.testing.assert_allclose(np.sort(written[bubbles]), radii, rtol=1e-6)
+    np.testing.assert_array_equal(written[bubbles], sphere_radius(p["volume"][bubbles]))
+    assert output_radii(plain, plain.particles_numpy(), 0.001) is None  # no stage owns a size
+    text = summary(RunResult(sim, str(tmp_path / "s.usdc"), 1, 1.0))
+    assert re.search(r"gas: .*, 100\.0% in sub-grid bubbles", text), text

@@ -105,7 +105,7 @@ def expanding_gas_limit(tmp_path, rate_per_axis):
     """The gas_expansion limit after one step of a bubble at ambient pressure (no pressure part),
     its velocity field then replaced by the uniform expansion u = rate_per_axis * x (so every gas
     cell's divergence is dim * rate_per_axis) and the step's report re-taken from it, as the step's
-    end does (Simulation._end_step)."""
+    end does (Simulation._phase_read_back)."""
     import numpy as np
 
     sim = bubble_tank(tmp_path)
@@ -124,7 +124,7 @@ def expanding_gas_limit(tmp_path, rate_per_axis):
     report = sim.read_host(f.max_speed)
     for read in sim.report_readers:
         read(sim, report)
-    assert float(sim.host_state["gas_expansion_rate"][0]) == pytest.approx(g.dim * rate_per_axis, rel=1e-5)
+    assert sim.stage("gas").state.expansion_rate == pytest.approx(g.dim * rate_per_axis, rel=1e-5)
     return sim, sim.dt_limits()
 
 

@@ -104,7 +104,7 @@ def test_numpy_collider_test_agrees_with_the_kernel(tmp_path):
                   output=Output(path=str(tmp_path / "c.usdc")), colliders=colliders).validate()
     sim = Simulation(scene, "cpu")
     pts = np.random.default_rng(0).random((4000, 3)) * [0.4, 0.2, 0.0] + [0, 0, 0.5 * 0.0125]
-    kernel = sim.stage("colliders").inside(sim, pts)
+    kernel = sim.stage("colliders").inside(sim.ctx, pts)
     ours = np.zeros(len(pts), bool)
     for c in scene.colliders:
         ours |= limits.inside_collider(c, pts, 2)

@@ -281,7 +281,7 @@ def test_implicit_runs_are_deterministic(tmp_path):
 
 
 def test_a_resumed_explicit_run_is_bit_identical(tmp_path):
-    # The explicit limit comes from the last step's grid (host_state["viscous_rate"]: 2.5x honey's
+    # The explicit limit comes from the last step's grid (its state's rate: 2.5x honey's
     # own rate here), so a run resumed from a checkpoint must take the steps of one that never stopped.
     from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 

@@ -49,10 +49,10 @@ def rise(sim, t_end, with_pass=True):
     retract = stage.after_g2p
     film = []
 
-    def measured(s, dt):
-        before = holes(s)
-        retract(s, dt)
-        film.append((before, holes(s)))
+    def measured(ctx, dt):  # a hook receives the step context; the holes are read from the simulation
+        before = holes(sim)
+        retract(ctx, dt)
+        film.append((before, holes(sim)))
 
     stage.after_g2p = measured
     interior = sim.grid.interior_slice()

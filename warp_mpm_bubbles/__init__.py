@@ -28,6 +28,8 @@ Extending (docs/new_effect.md):
 docs/api.md walks through the API with examples.
 """
 
+from .core.stage import register_builtin_stages as _register_builtin_stages
+from .stages import BUILTIN_STAGES as _BUILTIN_STAGES, STEP_ORDER as _STEP_ORDER
 from .scene import (
     Box,
     Cylinder,
@@ -55,6 +57,7 @@ __all__ = [
     "load_scene", *_LAZY,
 ]
 __version__ = "0.1.0"
+_register_builtin_stages(_BUILTIN_STAGES, _STEP_ORDER)  # the core names no effect: it is told them here
 
 
 def __getattr__(name):

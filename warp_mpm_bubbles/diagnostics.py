@@ -29,7 +29,7 @@ def _interior(mask):
 
 
 def phase_leak(positions, is_gas, volumes, dx: float, cells, dim: int) -> dict[str, float]:
-    """The leak metric of issue #3, relative to the total gas volume:
+    """How much each phase has leaked into the other, relative to the total gas volume:
 
     liquid_in_gas   volume of liquid particles at least one cell deep inside the gas region
                     (every cell of their 3^d neighbourhood gas-dominated): water leaked into bubbles
@@ -86,7 +86,7 @@ def bubble_volumes(positions, is_gas, volumes, dx: float, cells, dim: int) -> np
 
 
 def void_cells(types, ghost, up, gaps=None) -> int:
-    """Empty cells inside the liquid (issue #12): particle-free cells (grid.EMPTY) whose empty region
+    """Empty cells inside the liquid: particle-free cells (grid.EMPTY) whose empty region
     is not open air. A face-connected empty region is open air when it reaches an open wall (its
     empty ghost cells) or the domain's top layer (against gravity; without gravity, any side).
     In a filled tank every empty cell is a void; above a free surface none is.

@@ -1,7 +1,7 @@
-"""The box of the grid that the step's grid stages cover (issue #13: cost in proportion to the liquid).
+"""The box of the grid that the step's grid phases cover (cost in proportion to the liquid, not the domain).
 
 After p2g, one kernel takes the bounding box of the cells that hold an active particle; the host
-reads it (6 ints, the step's one read for it) to size the grid stages' launches. Every grid value
+reads it (6 ints, the step's one read for it) to size the grid phases' launches. Every grid value
 that the particles influence lies within BOX_MARGIN cells of that box: the splat reaches 2 cells,
 the hole-filling fluid classification 1 more, the projection trusts the faces of fluid cells and
 extrapolation adds EXTRAPOLATION_LAYERS layers, and each kernel reads one neighbour further. Outside
@@ -100,7 +100,7 @@ class LaunchBox:
 
 
 class ActiveRegion(LaunchBox):
-    """The grid stages' launch box, and `gas`, the resolved gas's (this step's gas particles' cells and
+    """The grid phases' launch box, and `gas`, the resolved gas's (this step's gas particles' cells and
     the margin, no union: what the gas writes there it rewrites every step). Disabled (`enabled=False`):
     both are the whole grid, and `update` reads nothing."""
 

@@ -1,4 +1,4 @@
-"""Counting the host's reads of device data (issue #13, item 4; docs/host_syncs.md).
+"""Counting the host's reads of device data (docs/host_syncs.md).
 
 On a GPU every read of a device array (``.numpy()``, ``.list()``) and every ``wp.synchronize*``
 waits for the device to drain: a host round trip. `HostReads` counts them while it is active,

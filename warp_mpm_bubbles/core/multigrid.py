@@ -31,7 +31,7 @@ cell types and face weights change every step. Choices (measured in benchmarks/p
   below PIVOT_TOLERANCE of its diagonal (the constant mode of a closed tank) is dropped, which
   gives a symmetric positive semi-definite pseudo-inverse.
 
-Active box (issue #13): every level works on the bounding box of the cells that can be unknowns,
+Active box (so that cost follows the liquid, not the domain): every level works on the bounding box of the cells that can be unknowns,
 [lo, hi), passed in the Level struct; cells outside it count as outside the arrays. The finest box
 is the fluid cells' bounding box, each coarser one the parents of the finer box, so the hierarchy and
 every unknown are those of the whole-grid V-cycle and the result is bit-identical (red-black colours
@@ -475,9 +475,9 @@ class MultigridPreconditioner:
             self.dims.append(dims)
             L.done = self.not_done if done is None else done
         for lvl in range(1, len(self.levels)):  # a row reads only its children: slabs run at once
-            stage = self._parts(build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk,
+            batch = self._parts(build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk,
                                                                  self.laplacian_scale], work_level=lvl - 1)
-            self.parallel.run([part.launch for part in stage])
+            self.parallel.run([part.launch for part in batch])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
         self._cycles = {}  # the V-cycle's recorded launches, per (r, z): the levels changed
 
@@ -489,33 +489,33 @@ class MultigridPreconditioner:
         if key not in self._cycles:
             self._cycles[key] = self._record_cycle(r, z)
         z.zero_()
-        for stage in self._cycles[key]:
-            if len(stage) == 1:
-                stage[0].launch()
+        for batch in self._cycles[key]:
+            if len(batch) == 1:
+                batch[0].launch()
             else:
-                self.parallel.run([part.launch for part in stage])
+                self.parallel.run([part.launch for part in batch])
 
     def _record_cycle(self, r, z):
-        """The V-cycle as stages of recorded launches: a stage's launches (slabs of one kernel's box,
-        on a level large enough to split; core/threads.py) run at once, stages one after another."""
+        """The V-cycle as batches of recorded launches: a batch's launches (slabs of one kernel's box,
+        on a level large enough to split; core/threads.py) run at once, batches one after another."""
         b, x, last, L = [r, *self.b[1:]], [z, *self.x[1:]], len(self.levels) - 1, self.levels
-        stages = []
+        batches = []
 
         def smoothing(lvl, colors):
             for _ in range(self.sweeps):
                 for color in colors:
-                    stages.append(self._parts(smooth, lvl, lambda walk: [L[lvl], walk, b[lvl], x[lvl], color]))
+                    batches.append(self._parts(smooth, lvl, lambda walk: [L[lvl], walk, b[lvl], x[lvl], color]))
 
         for lvl in range(last):
             smoothing(lvl, (0, 1))
-            stages.append(self._parts(restrict_residual, lvl + 1,  # its work: the finer level's cells
+            batches.append(self._parts(restrict_residual, lvl + 1,  # its work: the finer level's cells
                                       lambda walk: [L[lvl], L[lvl + 1], walk, b[lvl], x[lvl], b[lvl + 1], x[lvl + 1]],
                                       work_level=lvl))
-        stages.append([self._record(solve_coarsest, 1, [L[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])])
+        batches.append([self._record(solve_coarsest, 1, [L[last], self.factor, self.inv_pivot, b[last], self.y, x[last]])])
         for lvl in range(last - 1, -1, -1):
-            stages.append(self._parts(prolongate, lvl, lambda walk: [L[lvl], walk, x[lvl + 1], x[lvl]]))
+            batches.append(self._parts(prolongate, lvl, lambda walk: [L[lvl], walk, x[lvl + 1], x[lvl]]))
             smoothing(lvl, (1, 0))
-        return stages
+        return batches
 
     def _record(self, kernel, dims, inputs):
         return wp.launch(kernel, dims, inputs=inputs, device=self.device, record_cmd=True)

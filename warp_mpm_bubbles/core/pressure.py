@@ -1,7 +1,7 @@
 """Pressure projection: a matrix-free SPD operator and a preconditioned conjugate gradient.
 
 The operator is ``A p = -div(1/rho grad p)`` over fluid cells (empty cells are Dirichlet p = 0 gauge,
-solid faces Neumann), plus, from issue #3 on, a per-cell ``kappa/dt^2`` term for the gas. The CG is
+solid faces Neumann), plus a per-cell ``kappa/dt^2`` term for the gas. The CG is
 hand-written because ``warp.optim.linear.cg`` spends most of its CPU time in its reduction kernel
 (docs/design.md, #cg-on-warp); alpha, beta and the convergence test are computed on the device, with
 no read-back per iteration (PressureSolver). All launches cover the fluid cells' bounding box
@@ -360,7 +360,7 @@ class PressureSystem:
         """Build the system from numpy cell types, face weights and extra_diag (tests, benchmarks);
         diag is computed here, in float64, then stored as float32 like every other array.
 
-        Returns (system, n_fluid, singular), as the simulation's grid stage counts them.
+        Returns (system, n_fluid, singular), as the simulation counts them for its grid work.
         """
         fluid = types == FLUID
         faces = [np.asarray(w, dtype=np.float32) for w in inv_rho]
@@ -387,7 +387,7 @@ class SolveInfo:
 class PressureSolver:
     """PCG on the fluid cells of one grid; scratch arrays (and multigrid levels) are allocated once.
 
-    Work follows the liquid (issue #13): one pass over the whole grid masks the warm start and finds
+    Work follows the liquid: one pass over the whole grid masks the warm start and finds
     the fluid cells' bounding box on the device; the host reads the box (the solve's one read before
     it iterates, to size the launches) and every other launch covers the box grown by one cell (so
     each fluid cell's face neighbours are in it), at every multigrid level. `active_box=False`
@@ -425,27 +425,27 @@ class PressureSolver:
         self.box = ((0, 0, 0), tuple(shape))
 
     def _record(self, kernel, inputs, dims=None):
-        """One recorded launch of `kernel` (its inputs as given): a stage of one part."""
+        """One recorded launch of `kernel` (its inputs as given): a batch of one part."""
         return [wp.launch(kernel, dims or 1, inputs=inputs, device=self.device, record_cmd=True)]
 
     def _record_cells(self, kernel, inputs):
         """Recorded launches of a cell kernel over the box, its first argument the walk: slabs of planes,
-        one a thread, when the box is large enough to split (core/threads.py); a stage."""
+        one a thread, when the box is large enough to split (core/threads.py); a batch."""
         return [wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
                 for walk, d in line_slabs(self.lines, self.dims, self.parallel.threads)]
 
-    def _run(self, stage, row=None):
-        """Replay a stage's launches at once (setting `row` first, for the kernels that take one)."""
+    def _run(self, batch, row=None):
+        """Replay a batch's launches at once (setting `row` first, for the kernels that take one)."""
         if row is not None:
-            for launch in stage:
+            for launch in batch:
                 launch.set_param_by_name("row", row)
-        if len(stage) == 1:
-            stage[0].launch()
+        if len(batch) == 1:
+            batch[0].launch()
         else:
-            self.parallel.run([launch.launch for launch in stage])
+            self.parallel.run([launch.launch for launch in batch])
 
     def _reduce(self, first_slot: int, count: int, out, out_slot: int):
-        """A stage: out[row, out_slot + t] = the planes' sum of slot first_slot + t (sum_planes)."""
+        """A batch: out[row, out_slot + t] = the planes' sum of slot first_slot + t (sum_planes)."""
         n = self.box[1][0] - self.box[0][0]
         return self._record(sum_planes, [self.done, self.planes, n, first_slot, count, out, 0, out_slot])
 

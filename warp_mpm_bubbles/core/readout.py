@@ -50,7 +50,8 @@ def gas_budget(sim) -> dict[str, float]:
     vented = float(sim.fields.vented_mass.numpy()[0])
     outflow = sim.fields.outflow_mass.numpy()
     left = float(outflow[PHASE_GAS] + outflow[PHASE_SUBGRID] + outflow[PHASE_FOAM])  # through open walls
-    booked = {key: float(sim.host_state.get(f"gas_mass_{key}", np.zeros(1))[0])
+    kept = sim.state_arrays()  # the books the void pass and the stages keep (core/host_state.py)
+    booked = {key: float(kept.get(f"gas_mass_{key}", np.zeros(1))[0])
               for key in ("rounding", "trapped", "entrained")}
     return {**held, "vented": vented, "left": left, **booked,
             "total": held["inside"] + held["subgrid"] + held["foam"] + vented + left + booked["rounding"]
@@ -66,7 +67,7 @@ def mass_budget(sim) -> dict[str, dict[str, float]]:
     p = sim.particles
     liquid = (p.numpy("phase") == PHASE_LIQUID) & (p.numpy("active") != RETIRED)  # flying above an open top too
     held = float(p.numpy("mass")[liquid].astype(np.float64).sum())
-    added = float(sim.host_state["liquid_added"][0])
+    added = sim.ledger.liquid_added
     left = float(sim.fields.outflow_mass.numpy()[PHASE_LIQUID])
     return {"liquid": {"added": added, "held": held, "left": left, "error": added - held - left},
             "gas": gas_budget(sim)}

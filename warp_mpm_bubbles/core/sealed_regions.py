@@ -311,7 +311,7 @@ class SealedRegions:
         for a in sim.grid.axes:
             slabs = axis_lines(lo, hi, a, sim.parallel.threads)
             if slabs:
-                sim._launch_parts(sweep_labels, [(d, [box, types, inv_rho[a], self.labels]) for box, d in slabs])
+                sim.launch_parts(sweep_labels, [(d, [box, types, inv_rho[a], self.labels]) for box, d in slabs])
 
     def _tally(self, sim, types, inv_rho, extra_diag, counters):
         lines = sim.region.cell_lines

@@ -11,7 +11,9 @@ One step (Zhang et al. 2017 incompressible MPM, APIC on a MAC grid; docs/design.
     g2p       faces -> particle velocity and APIC matrix, J, advection clamped to the domain
     (after)   the optional stages that move or convert particles
 
-Each optional stage joins at named hook points (`Stage`): the step below reads as that list.
+Each optional stage joins at named hook points (`Stage`). The phases, core work and hook points alike,
+are declared once, in core/step.py's STEP: `step` runs that list, and `step_graph` the same list cut
+into CUDA graphs.
 The time step is the smallest of the CFL limit and the stages' limits, and lands exactly on frame
 times. Inside a step the host reads only scalars: the grid box (core/active_box.py), the fluid box and
 the CG's exit flag every few iterations (core/pressure.py), the solve's cell counts, one read-back at the
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,10 +36,14 @@ from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
+from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
-from .stage import HOOKS, Stage, build_stages
+from .context import StepContext
+from .launch import Launcher
+from .stage import Stage, build_stages
+from .step import GRID_WRITING_HOOKS, HOOKS, PHASES, Run, step_plan
 from .state import GridFields, ParticleState
 from .timing import StageTimer
 from . import readout, sealed_regions, threads
@@ -53,14 +60,6 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 # bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
 SORT_EVERY = 0
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
-# Hooks timed on their own line of the run summary; the others are timed with the core stage around them.
-TIMED_HOOKS = ("begin_step", "force", "after_g2p", "end_step")
-# Stages whose hooks inside step_graph's captured stretches launch device work only, with dt their
-# only per-step argument (colliders pass the time: not these; unknown stages: not these).
-GRAPH_STAGES = frozenset({"gas", "viscosity", "surface_tension", "subgrid_bubbles", "foam", "emitters", "entrainment"})
-# Hooks at which stages write grid arrays: unless every stage there is box-aware (Stage.grid_box), the grid
-# stages cover the whole grid, since its kernels may write anywhere.
-GRID_WRITING_HOOKS = ("after_p2g", "on_momentum", "on_cells", "on_faces", "force", "before_extend", "on_extended")
 
 
 @dataclass
@@ -90,8 +89,8 @@ class Simulation:
     """Runs a validated :class:`~warp_mpm_bubbles.scene.Scene` on a Warp device ("cpu", "cuda:0").
 
     Public state: ``particles`` (`ParticleState`), ``fields`` (`GridFields`), ``grid`` (`MacGrid`),
-    ``time`` and ``frame``, ``host_state`` (small checkpointed state of the stages), ``gravity``
-    (3 floats, m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1
+    ``time`` and ``frame``, ``ledger`` (the next id, the liquid and gas added), ``ctx`` (the
+    `StepContext` the stages see), ``gravity`` (3 floats, m/s^2), ``up`` ((axis, sign) against the strongest gravity component; axis -1
     without gravity), and ``geometry``, the `GridGeometry` struct the particle kernels take.
     """
 
@@ -99,39 +98,58 @@ class Simulation:
         self.scene = scene.validate()
         self.effects = self.scene.effect_names  # the optional stages that run; no others do
         self.device = wp.get_device(device)
-        self.launches: Counter[str] = Counter()  # kernel launches by name: proof of what ran
         self.grid = g = MacGrid.from_domain(scene.domain)
         self.timer = StageTimer(self.device)
-        self.stats = SolverStats()
-        self.time = 0.0
-        self.frame = 0
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
         self.sort_every = SORT_EVERY
         self._sorted_at = 0  # the step of the last sort by cell
-        # next_id: the next particle's id; liquid_added: kg of liquid seeded and emitted (mass_budget)
-        self.host_state: dict[str, np.ndarray] = {"next_id": np.zeros(1, np.int64), "liquid_added": np.zeros(1)}
+        self.ledger = Ledger()  # the next particle's id, the liquid and gas added (core/host_state.py)
         self._init_geometry()
         self.particles = ParticleState(self.device)
         self.parallel = Parallel(cpu_threads() if self.device.is_cpu else 1)  # for the transfers and the V-cycle
         self.fields = GridFields(g, self.device, parts=self.parallel.threads)
         # g2p parts' fastest speeds, a cache line apart: each part writes its slot for every particle
         self.speed_parts = wp.zeros(self.parallel.threads * threads.CACHE_LINE_FLOATS, dtype=float, device=self.device)
-        self._loaded: set = set()  # kernels launched once already (_launch_parts)
+        # Every launch goes through the launcher (core/launch.py); the core uses its helpers by name.
+        self.launcher = launcher = Launcher(self.device, self.parallel, g, self.particles)
+        self.launches = launcher.launches  # kernel launches by name: proof of what ran
+        self.launch, self.launch_lines, self.launch_particles = launcher.launch, launcher.launch_lines, launcher.launch_particles
+        self.launch_box, self.launch_splat, self.launch_parts = launcher.launch_box, launcher.launch_splat, launcher.launch_parts
         self.solver = PressureSolver(g.cells, g.dim, g.dx, self.device, parallel=self.parallel)
         # Fluid regions no free surface reaches, one apart from another: only solids inside the domain (the
         # colliders) can seal one off; without them the fluid is one region or reaches the air.
         self.sealed = sealed_regions.SealedRegions(g.cells, self.device) if scene.colliders else None
-        self.report_writers: list = []  # stages' f(sim) that write into the step's read-back before it
-        self.report_readers: list = []  # stages' f(sim, report) after the step's one read-back
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
-        self._capturing = False
+        self.ctx = self._context()  # what the stages see (core/context.py)
         self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
-        self.stages: list[Stage] = build_stages(self, self.effects)
+        self.stages: list[Stage] = build_stages(self.ctx, self.effects)
         self._hooks = {hook: [s for s in self.stages if hook in s.hooks()] for hook in HOOKS}
-        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin
+        self._plans = {graph: step_plan(self._hooks, graph) for graph in (False, True)}  # core/step.py
+        # the grid stages' launch box (core/active_box.py): the particles' cells and a margin;
+        # unless every stage at a grid-writing hook is box-aware, the whole grid (its kernels may write anywhere)
         self.region = ActiveRegion(g, self.device, parallel=self.parallel,
                                    enabled=all(s.grid_box for h in GRID_WRITING_HOOKS for s in self._hooks[h]))
         self._seed()
+
+    def _context(self) -> StepContext:
+        return StepContext(
+            scene=self.scene, device=self.device, grid=self.grid, fields=self.fields, particles=self.particles,
+            geometry=self.geometry, launcher=self.launcher, stats=SolverStats(), gravity=self.gravity, up=self.up,
+            two_phase=self.two_phase, interface=self.interface, has_gas=self.has_gas,
+            effects=self.effects, ledger=self.ledger, read_host=self.read_host,
+            add_particles=self.add_particles, stage=self.stage, extend=self.extend, book_outflow=self.book_outflow,
+            dt_limits=self.dt_limits)
+
+    def _set_region(self, region: ActiveRegion):
+        self.ctx.region = self.launcher.region = region
+
+    # The clock, the counts and the box live in the context, which the stages read them from.
+    stats = property(lambda self: self.ctx.stats, lambda self, st: setattr(self.ctx, "stats", st))
+    region = property(lambda self: self.ctx.region, _set_region)
+    time = property(lambda self: self.ctx.time, lambda self, t: setattr(self.ctx, "time", t))
+    frame = property(lambda self: self.ctx.frame, lambda self, n: setattr(self.ctx, "frame", n))
+    report_writers = property(lambda self: self.ctx.report_writers)  # stages' f(ctx) writing into the read-back
+    report_readers = property(lambda self: self.ctx.report_readers)  # stages' f(ctx, report) after it
 
     def _init_geometry(self):
         g, scene = self.grid, self.scene
@@ -155,7 +173,7 @@ class Simulation:
         self.seeded = len(seeds["positions"])  # what the shapes seed, before colliders remove any
         colliders = self.stage("colliders")
         if colliders:  # no particle starts inside a solid
-            keep = ~colliders.inside(self, seeds["positions"])
+            keep = ~colliders.inside(self.ctx, seeds["positions"])
             seeds = {name: values[keep] for name, values in seeds.items()}
         self.add_particles(seeds["positions"], seeds["velocities"], seeds["material"], seeds["volume"],
                            seeds["pressure"])
@@ -182,10 +200,20 @@ class Simulation:
         """``with sim.count_host_reads() as reads: sim.step(dt)``: the host reads inside, by module."""
         return HostReads()
 
-    def launch(self, kernel, dim, inputs):
-        """Every kernel launch goes through here, so `launches` proves what ran."""
-        self.launches[kernel.key] += 1
-        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """The host values a resumed run needs, by checkpoint name: the core's ledger, the void pass's
+        and each stage's `state` (core/host_state.py; io/checkpoint.py saves them)."""
+        out = {**self.ledger.arrays(), **self.voids.state.arrays()}
+        for s in self.stages:
+            out.update(s.state_arrays())
+        return out
+
+    def load_state(self, arrays: dict) -> None:
+        """Take back what state_arrays gave (a name missing from an older checkpoint keeps its fresh value)."""
+        self.ledger.load(arrays)
+        self.voids.state.load(arrays)
+        for s in self.stages:
+            s.load_state(arrays)
 
     def add_particles(self, positions, velocities, material, volume, gauge_pressure=None) -> slice:
         """Append particles (numpy arrays; material: indices into scene.materials; volume: current,
@@ -207,120 +235,117 @@ class Simulation:
             "active": np.ones(n, np.int32), "material": np.asarray(material, np.int32),
             "gas_law": per_material(lambda m: GAS_LAW_CODES.get(m.eos, 0), np.int32),
             "gas_gamma": per_material(lambda m: m.gamma, np.float32),
-            "ids": self.host_state["next_id"][0] + np.arange(n, dtype=np.int64),
+            "ids": self.ledger.next_id + np.arange(n, dtype=np.int64),
         }
-        self.host_state["next_id"] = self.host_state["next_id"] + n
+        self.ledger.next_id += n
         liquid = values["phase"] == PHASE_LIQUID  # booked as stored (float32), so the ledger closes exactly
         stored = np.asarray(values["mass"], np.float32).astype(np.float64)
-        self.host_state["liquid_added"] = self.host_state["liquid_added"] + stored[liquid].sum()
+        self.ledger.liquid_added += float(stored[liquid].sum())
         # Gas appended (kg; conversions re-append what they retire, so an upper bound of what is held):
         # the emitters' room bound reads nothing (effects/emitters.py, _may_fill).
-        self.host_state["gas_added"] = self.host_state.get("gas_added", np.zeros(1)) + stored[~liquid].sum()
+        self.ledger.gas_added += float(stored[~liquid].sum())
         added = self.particles.append(values, n)
         if n:
             self.max_particle_speed = max(self.max_particle_speed,
                                           float(np.linalg.norm(np.asarray(velocities), axis=1).max()))
         return added
 
-    def _run(self, hook: str, dt: float):
-        for s in self._hooks[hook]:
-            if hook in TIMED_HOOKS and not self._capturing:  # the timer synchronizes: not in a capture
-                with self.timer(s.timer_name):
-                    getattr(s, hook)(self, dt)
-            else:
-                getattr(s, hook)(self, dt)
-
     # ------------------------------------------------------------------------------ the step
     def step(self, dt: float):
-        self._run("begin_step", dt)  # emitters
-        self._splat_and_classify(dt)
-        if self.voids.seeded:  # trapped air seeded in this step's cells: splat again, so this solve sees its gas
-            self._splat_and_classify(dt, again=True)
-        self._run("force", dt)  # viscosity, surface tension
-        with self.timer("grid"):
-            self._assemble_pressure_system(dt)
-        with self.timer("pressure"):
-            self._solve_pressure(dt)
-        with self.timer("extend"):
-            self._run("before_extend", dt)  # the gas's own field
-            self.extend(self.fields.vel, self.fields.valid)
-        with self.timer("g2p"):
-            self._run("before_g2p", dt)  # gas volume change
-            self._grid_to_particles(dt)
-        self._run("after_g2p", dt)  # films, entrainment, sub-grid bubbles, foam, venting
-        self._run("end_step", dt)  # colliders push particles out
-        self._end_step(dt)
+        """One time step: the phases of core/step.py's STEP, in order (docs/design.md, "The step")."""
+        self.ctx.dt = dt
+        self._run_plan(self._plans[False], dt)
 
-    def _splat_and_classify(self, dt: float, again: bool = False):
-        """p2g, the grid velocities and the cell types (the void pass last). again: once more in the
-        same step, after the void pass seeded trapped air (core/voids.py): the step then goes on as
-        if the gas had been there from its start, so the solve sees the pocket as gas, not EMPTY at
-        p = 0 inside the liquid. Each pass writes what it writes from scratch, on a box holding the
-        first's (the same particles and more, united with the previous step's)."""
-        with self.timer("p2g"):
-            if not again:
-                self._sort_if_due()
-            self.region.update(self.particles, again)  # one read: the box the grid stages cover
-            self.particles_to_grid(self.region)
-            self._run("after_p2g", dt)  # gas sums
-        with self.timer("grid"):
-            self._grid_velocity_and_cells(dt)
+    def step_plan(self, graph: bool = False) -> list[Run]:
+        """The runs of phases step (graph=False) or step_graph (graph=True) makes of this scene's step."""
+        return self._plans[graph]
 
-    def _end_step(self, dt: float):
+    def _run_plan(self, runs: list[Run], dt: float, again: bool = False):
+        """Run each phase in turn, those sharing a timer line under one timer (it synchronizes on a
+        GPU); a hook without one times each stage on its own line. A captured run is one CUDA graph."""
+        with ExitStack() as timed:
+            line = None  # the timer line open now
+            for i, run in enumerate(runs):
+                first = PHASES[run.phases[0]]
+                name = f"graph: {run.phases[0]} .. {run.phases[-1]}" if run.captured else first.timer
+                if name != line:
+                    timed.close()
+                    if name is not None:
+                        timed.enter_context(self.timer(name))
+                    line = name
+                if run.captured:
+                    self._replay(run, dt)
+                elif first.repeat_from:
+                    if self.voids.seeded:  # trapped air seeded in this step's cells: this solve must see its gas
+                        timed.close()
+                        line = None
+                        start = next(j for j, r in enumerate(runs) if first.repeat_from in r.phases)
+                        self._run_plan(runs[start:i], dt, again=True)
+                else:
+                    self._run_phase(first, dt, again, timed=name is None)
+
+    def _run_phase(self, phase, dt: float, again: bool, timed: bool = False):
+        if not phase.hook:
+            getattr(self, f"_phase_{phase.name}")(dt, again)
+            return
+        for s in self._hooks[phase.name]:
+            if timed:
+                with self.timer(s.timer_name):
+                    getattr(s, phase.name)(self.ctx, dt)
+            else:
+                getattr(s, phase.name)(self.ctx, dt)
+
+    def _phase_sort(self, dt: float, again: bool):
+        if not again:
+            self._sort_if_due()
+
+    def _phase_region(self, dt: float, again: bool):
+        """The box the grid phases cover, read on the host; again: the same step's, after the void pass
+        seeded trapped air (core/voids.py). The second pass writes what it writes from scratch, on a box
+        holding the first's (the same particles and more, united with the previous step's)."""
+        self.region.update(self.particles, again)
+
+    def _phase_p2g(self, dt: float, again: bool):
+        self.particles_to_grid(self.region)
+
+    def _phase_read_back(self, dt: float, again: bool):
         # The step's one read-back: the fastest particle (g2p and the stages that move particles)
         # sets the next dt on the host; the stages' counts come with it (docs/host_syncs.md).
         for write in self.report_writers:
-            write(self)
+            write(self.ctx)
         report = self.read_host(self.fields.max_speed)
         self.max_particle_speed = float(report[0])
         for read in self.report_readers:
-            read(self, report)
+            read(self.ctx, report)
         self.stats.steps += 1
         self.stats.dt_history.append(dt)
 
     def step_graph(self, dt: float):
-        """step(dt), with its two device-only stretches (p2g .. the pressure system, and extend ..
-        g2p) captured as CUDA graphs (wp.ScopedCapture) and replayed while nothing they bake in
-        changes; the solve, the host stages and the read-back run as in step(). On the CPU, or with
-        a stage outside GRAPH_STAGES, it is step(dt). UNTESTED on a GPU (none where it was written;
-        docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
-        if not self.device.is_cuda or any(s.name not in GRAPH_STAGES for s in self.stages):
+        """step(dt) with each capturable stretch of the step (step_plan(graph=True)) captured as a
+        CUDA graph (wp.ScopedCapture) and replayed while nothing it bakes in changes; the phases that
+        read the host run between them as in step(). On the CPU it is step(dt). UNTESTED on a GPU
+        (docs/host_syncs.md): the same results as step() are the acceptance test to run first."""
+        if not self.device.is_cuda:
             return self.step(dt)
-        f = self.fields
-        self.region.whole_grid()  # its box is read on the host: not inside a graph
-        self._run("begin_step", dt)
-        self._sort_if_due()  # moves the particle arrays in place: outside the graphs
-        with self.timer("graph: p2g .. system"):
-            self._replay("pre", dt, lambda: (self.particles_to_grid(), self._run("after_p2g", dt),
-                                             self._grid_velocity_and_cells(dt), self._run("force", dt),
-                                             self._assemble_pressure_system(dt)))
-        with self.timer("pressure"):
-            self._solve_pressure(dt)
-        with self.timer("graph: extend .. g2p"):
-            self._replay("post", dt, lambda: (self._run("before_extend", dt), self.extend(f.vel, f.valid),
-                                              self._run("before_g2p", dt), self._grid_to_particles(dt)))
-        self._run("after_g2p", dt)
-        self._run("end_step", dt)
-        self._end_step(dt)
+        self.ctx.dt = dt
+        self._run_plan(self._plans[True], dt)
 
-    def _replay(self, name: str, dt: float, stretch):
-        """Capture `stretch` once per (dt, particle arrays, face arrays) and launch the graph; the
+    def _replay(self, run: Run, dt: float):
+        """Capture `run` once per (dt, particle arrays, box, face arrays) and launch the graph; the
         face lists the stretch swaps (viscosity, extend) are set as the capture left them."""
         f, p = self.fields, self.particles
         lists = [a for a in (f.vel, f.vel_tmp, f.valid, f.valid_tmp, f.gas_vel, f.gas_valid) if a is not None]
-        key = (name, dt, p.count, p.x.ptr, self.region.box, tuple(a.ptr for arrays in lists for a in arrays))
+        key = (run.phases, dt, p.count, p.x.ptr, self.region.box, tuple(a.ptr for arrays in lists for a in arrays))
         if key not in self._graphs:
-            if len(self._graphs) >= 8:  # dt changes: keep only recent graphs
+            if len(self._graphs) >= 16:  # dt changes: keep only recent graphs
                 self._graphs.clear()
             before = Counter(self.launches)
-            self._capturing = True
-            try:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    stretch()
-            finally:
-                self._capturing = False
+            with wp.ScopedCapture(device=self.device) as capture:
+                for name in run.phases:
+                    self._run_phase(PHASES[name], dt, again=False)  # untimed: the timer synchronizes
             self._graphs[key] = (capture.graph, self.launches - before, [list(a) for a in lists])
-            self.launches = before
+            self.launches.clear()
+            self.launches.update(before)
         graph, launches, after = self._graphs[key]
         wp.capture_launch(graph)
         self.launches.update(launches)
@@ -353,35 +378,30 @@ class Simulation:
             self.launch_lines(split_pairs, r.face_lines[a], [f.face_pairs[a], f.mom[a], f.face_mass[a]])
         self.launch_lines(split_pairs, r.cell_lines, [f.cell_pairs, f.liq_mass, f.liq_volume])
 
-    def launch_splat(self, kernel, inputs, region=None):
-        """Launch a particle-to-grid kernel over every particle, its last two arguments the slab
-        [x_lo, x_hi) of grid nodes along x it writes: one slab a thread on the CPU, cut evenly across
-        the region's nodes (faces: one more than cells), the first and last reaching the arrays' ends
-        so every node belongs to some part. Each part visits the particles in index order, so every
-        node sums them in that order whatever the split (core/threads.py)."""
-        r = region or self.region
-        cuts = split(r.box[0][0], r.box[1][0] + 1, self.parallel.threads)
-        cuts[0], cuts[-1] = 0, self.grid.face_shape(0)[0]
-        self._launch_parts(kernel, [(self.particles.count, [*inputs, a, b]) for a, b in zip(cuts, cuts[1:])])
-
-    def _grid_velocity_and_cells(self, dt: float):
+    def _phase_momentum(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         for a in g.axes:
             self.launch_lines(gk.momentum_to_velocity, r.face_lines[a],
                               [self.gravity[a], dt, f.mom[a], f.face_mass[a], f.vel[a]])
-        self._run("on_momentum", dt)  # sub-grid bubbles' drag reaction
+
+    def _phase_classify(self, dt: float, again: bool):
+        g, f, r = self.grid, self.fields, self.region
         step = step_params(g, dt, self.two_phase, self.interface)
         self.launch_lines(gk.classify_cells, r.cell_lines, [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo,
                                                             self.wall_hi, f.cell_count, splat(f), f.types])
-        self._run("on_cells", dt)  # colliders' solid cells, then the gas's phases
+
+    def _phase_voids(self, dt: float, again: bool):
         self.voids.apply(dt)  # EMPTY cells closed off from the open air become liquid (or trapped air)
+
+    def _phase_face_density(self, dt: float, again: bool):
+        g, f, r = self.grid, self.fields, self.region
+        step = step_params(g, dt, self.two_phase, self.interface)
         for a in g.axes:
             self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [a, f.types, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
                               [step, a, cell_phases(f), splat(f), f.inv_rho[a]])
-        self._run("on_faces", dt)  # moving colliders' face velocities
 
-    def _assemble_pressure_system(self, dt: float):
+    def _phase_assemble(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
         step = step_params(g, dt, self.two_phase, self.interface)
@@ -389,10 +409,10 @@ class Simulation:
         fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
         slabs = line_slabs(*r.cell_lines, self.parallel.threads)
-        self._launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
-                                                          for q, (slab, d) in enumerate(slabs)])
+        self.launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
+                                                         for q, (slab, d) in enumerate(slabs)])
 
-    def _solve_pressure(self, dt: float):
+    def _phase_solve(self, dt: float, again: bool):
         g, f, settings, r = self.grid, self.fields, self.scene.solver, self.region
         if self.sealed:
             self.sealed.count(self, f)  # the fluid's connected regions, into counters[3:6]
@@ -444,7 +464,13 @@ class Simulation:
                 valid[a], f.valid_tmp[a] = f.valid_tmp[a], valid[a]
             self.launch_lines(gk.enforce_walls, r.face_lines[a], [a, f.types, vel[a]])
         for s in self._hooks["on_extended"]:
-            s.on_extended(self, vel)
+            s.on_extended(self.ctx, vel)
+
+    def _phase_extend(self, dt: float, again: bool):
+        self.extend(self.fields.vel, self.fields.valid)
+
+    def _phase_g2p(self, dt: float, again: bool):
+        self._grid_to_particles(dt)
 
     def _grid_to_particles(self, dt: float):
         f, p = self.fields, self.particles
@@ -460,7 +486,7 @@ class Simulation:
             self.speed_parts.zero_()
             cuts = split(0, p.count, self.parallel.threads)
             line = threads.CACHE_LINE_FLOATS
-            self._launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args, self.speed_parts])
+            self.launch_parts(G2P[self.grid.dim], [(b - a, [a, dt, gas_J_from_cells, q * line, *args, self.speed_parts])
                                                     for q, (a, b) in enumerate(zip(cuts, cuts[1:]))])
             self.launch(fastest_of_parts, 1, [self.speed_parts, self.parallel.threads, line, f.max_speed])
         self.book_outflow()
@@ -472,48 +498,6 @@ class Simulation:
         if self.open_walls and self.particles.count:
             p = self.particles
             self.launch(book_outflow, p.count, [p.active, p.phase, p.mass, self.fields.outflow_mass])
-
-    def launch_lines(self, kernel, lines, inputs):
-        """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
-        writes only what it walks: lines = (Lines, dims), the Lines struct its first argument. A box of
-        SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
-        slabs = line_slabs(*lines, self.parallel.threads)
-        if len(slabs) == 1:
-            self.launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
-        else:
-            self._launch_parts(kernel, [(d, [slab, *inputs]) for slab, d in slabs])
-
-    def launch_particles(self, kernel, inputs):
-        """Launch a per-particle kernel whose first argument is the index of its first particle and
-        which writes only its own particles' values: in ranges at once on the CPU's threads (no
-        particle's result depends on the split), one launch for few particles or one thread."""
-        n = self.particles.count
-        if n == 0:
-            return
-        cuts = split(0, n, self.parallel.threads if n >= threads.SPLIT_PARTICLES else 1)
-        self._launch_parts(kernel, [(b - a, [a, *inputs]) for a, b in zip(cuts, cuts[1:]) if b > a])
-
-    def launch_box(self, kernel, lo, dims, inputs):
-        """Launch a kernel over the box of `dims` cells or faces from `lo` (its last argument: the offset
-        of its thread index) that writes only what it is launched on: in slabs along x at once on the
-        CPU's threads when the box holds SPLIT_CELLS or more."""
-        cuts = split(0, dims[0], self.parallel.threads if math.prod(dims) >= threads.SPLIT_CELLS else 1)
-        self._launch_parts(kernel, [((b - a, *dims[1:]), [*inputs, wp.vec3i(lo[0] + a, lo[1], lo[2])])
-                                    for a, b in zip(cuts, cuts[1:]) if b > a])
-
-    def _launch_parts(self, kernel, parts):
-        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the
-        first time one after the other: the first launch compiles or loads the kernel's module, which
-        must happen once, on one thread)."""
-        self.launches[kernel.key] += len(parts)
-        calls = [lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
-                 for d, inputs in parts]
-        if kernel in self._loaded:
-            self.parallel.run(calls)
-        elif calls:  # (no part: an empty box, nothing loaded yet)
-            for call in calls:
-                call()
-            self._loaded.add(kernel)
 
     # ---------------------------------------------------------------------------- time steps
     def dt_limits(self) -> dict[str, float]:
@@ -528,7 +512,7 @@ class Simulation:
         speed += math.sqrt(g_mag * self.grid.dx)
         limits = {"cfl": s.cfl * self.grid.dx / speed if speed > 0.0 else math.inf}
         for st in self.stages:
-            limit = st.dt_limit(self)
+            limit = st.dt_limit(self.ctx)
             if limit < math.inf:
                 limits[st.limit or st.name] = limit
         if s.max_dt is not None:
@@ -557,7 +541,7 @@ class Simulation:
             if on_step:
                 on_step(dt, t_end - self.time)
         if not self.particles.in_id_order:
-            self.particles.sort_by_id(int(self.host_state["next_id"][0]), self.launch)
+            self.particles.sort_by_id(self.ledger.next_id, self.launch)
 
     @property
     def frame_dt(self) -> float:

@@ -7,7 +7,7 @@ The parts are chosen so that the results do not depend on how many there are:
 - p2g and the gas's splat (Simulation.launch_splat): disjoint slabs of grid nodes along x, each part
   visiting the particles in the same order, so every node sums its contributions in particle order
   whatever the split;
-- the grid stages, the V-cycle's smoothing, restriction, prolongation and coarse operators, and the
+- the grid phases, the V-cycle's smoothing, restriction, prolongation and coarse operators, and the
   CG's vector kernels over a large box (lines of cells, core/lines.py): slabs of lines, for kernels
   that write only the cells they walk. The CG's dot products are summed per plane of the box (a
   plane is one slab's) and then over the planes in order (core/pressure.py), so they too are the

@@ -155,8 +155,8 @@ def update_gas_J(start: int, dt: float, geo: GridGeometry, rate: wp.array3d(dtyp
     each contributed in p2g_gas (same weights, same positions), so the gas as a whole changes
     volume exactly as its cells do: sum_p w_pc V_p J_p = V_gas,c. Incompressible gas (law 0) keeps
     its J: what its cells' divergence holds beyond the correction's target is the solve's residual
-    and, in a closed tank, the mean the singular solve removes (issue #12: -3.9% of the bubble's
-    volume over the 2D benchmark at 40 cells). Particles start + tid (Simulation.launch_particles)."""
+    and, in a closed tank, the mean the singular solve removes (a few percent of a bubble's
+    volume over a rising-bubble benchmark). Particles start + tid (Simulation.launch_particles)."""
     p = wp.tid() + start
     gas, s = compressible_gas_stencil(geo, particles, p)
     if not gas:
@@ -300,7 +300,7 @@ def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: i
 @wp.kernel(enable_backward=False)
 def split_pairs(box: Lines, pairs: wp.array3d(dtype=wp.vec2), first: wp.array3d(dtype=float),
                 second: wp.array3d(dtype=float)):
-    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid stages read,
+    """p2g's (momentum, mass) and (mass, volume) pairs into the separate arrays the grid phases read,
     over a box of them (core/lines.py)."""
     ti, tj, tk = wp.tid()
     first_cell = line_first(box, ti, tj, tk)

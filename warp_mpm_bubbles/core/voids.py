@@ -1,4 +1,4 @@
-"""Voids: particle-free cells inside the liquid (issue #12; docs/design.md, "Voids").
+"""Voids: particle-free cells inside the liquid (docs/design.md, "Voids").
 
 `classify_cells` calls a cell with no particle and a fill fraction under HOLE_FRACTION EMPTY, which
 the solve reads as a free surface at p = 0. That is right above the water and wrong inside it: an
@@ -28,7 +28,7 @@ After the cells are classified (and colliders have marked theirs), `VoidPass.app
    (`seeded`), and Simulation.step splats and classifies again, so the same step's solve sees the
    pocket as gas cells, a resolved bubble, never as EMPTY at p = 0 inside the liquid (the pour's 90
    frames: at most 1,045 void cells at one step before, none after). The mass is booked as taken
-   from the atmosphere (host_state["gas_mass_trapped"], so Simulation.gas_budget's total stays
+   from the atmosphere (`VoidPass.state`, checkpointed as "gas_mass_trapped", so Simulation.gas_budget's total stays
    exact). One beside gas is the space the gas just left (a burst's vented cavity), not trapped
    air. Without gas, or beside incompressible gas, a large region stays EMPTY.
 
@@ -42,12 +42,15 @@ fill, liquid and gas as one medium (see VoidPass.__init__).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import warp as wp
 
 from .grid import EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels
 from .cells import cell_type_at
 from . import kernel_args
+from .host_state import HostState, saved
 from .kernel_args import Splat
 from .lines import Lines, line_end, line_first, make_lines, on_line
 
@@ -293,7 +296,7 @@ class VoidSearch:
 
     def find(self, types, region=None):
         """(types on the host, void cells, their region labels), or None when there is no void.
-        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid stages' box), or
+        region: a box (lo, hi) outside which every interior cell is EMPTY (the grid phases' box), or
         None for the whole grid.
 
         1. Count the covered EMPTY cells (below a fluid or solid cell of their column; without gravity
@@ -340,6 +343,11 @@ class VoidSearch:
         self.launch(kernel, dims, [box, *inputs])
 
 
+@dataclass
+class TrappedAir(HostState):
+    gas_mass: float = saved("gas_mass_trapped", 0.0)  # kg of air taken from the atmosphere into pockets
+
+
 class VoidPass:
     """Finds the voids after the cells are classified (VoidSearch) and makes them liquid (or, with gas,
     trapped air); see the module docstring. `last_voids`: void cells found this step (the run's report),
@@ -359,13 +367,12 @@ class VoidPass:
         # the gas after five diameters instead of 67-73%; tests/test_gas.py). With incompressible
         # gas the correction closes a hole by its own fill, as one medium (volume_correction.cell_excess):
         # cleared to liquid, a hole counted its whole cell as missing on top of its neighbours' share
-        # of the same gap, and holes inside the bubble became liquid cells (issue #12, the 2D
-        # benchmark at 40 cells: velocity jitter 0.0045 cleared, 0.0031 not).
+        # of the same gap, and holes inside the bubble became liquid cells, which made the
+        # bubble's rise speed jitter more.
         gas_kinds = [m for m in sim.scene.materials.values() if m.is_gas] if sim.has_gas else []
         self.compressible = any(m.eos != "incompressible" for m in gas_kinds)
         self.clear_holes = not gas_kinds
-        if self.gas_material is not None:  # checkpointed with the rest of host_state
-            sim.host_state.setdefault("gas_mass_trapped", np.zeros(1))
+        self.state = TrappedAir()  # checkpointed (core/host_state.py)
         self.last_voids = 0
         self.by_frame: dict[int, int] = {}  # most void cells at one step, per frame that had any (run summary)
         self.pockets = 0  # void regions seeded as trapped air
@@ -378,7 +385,7 @@ class VoidPass:
 
     def apply(self, dt: float):
         """The pass (module docstring). Called a second time in a step after it seeded trapped air
-        (Simulation._splat_and_classify): then the pocket's cells hold gas particles and are gas
+        (the resplat phase, core/step.py): then the pocket's cells hold gas particles and are gas
         cells, and last_voids keeps the larger count of the two passes (the voids found this step)."""
         sim, g, f = self.sim, self.sim.grid, self.sim.fields
         again = self._step == sim.stats.steps
@@ -468,4 +475,4 @@ class VoidPass:
         volume = np.full(n, g.dx**3 / ppc)
         added = sim.add_particles(positions, np.zeros((n, 3)), material, volume)
         mass = float(sim.particles.numpy("mass")[added].astype(np.float64).sum())
-        sim.host_state["gas_mass_trapped"] = sim.host_state["gas_mass_trapped"] + mass
+        self.state.gas_mass += mass

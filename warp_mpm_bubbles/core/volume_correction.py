@@ -54,9 +54,8 @@ def cell_excess(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtyp
     """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
     gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its total
     fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the correction
-    governs only then). The gas's own over-fill alone spread a bubble to 1.16 of its particles'
-    volume (nothing closed its under-filled cells), the liquid's alone piled it to 0.37 (issue #12's
-    3D tank). Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
+    governs only then). The gas's own over-fill alone spread a bubble well past its particles'
+    volume (nothing closed its under-filled cells); the liquid's alone crushed it to a fraction of it. Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
     held = liq_volume[c[0], c[1], c[2]]
     gas_here = float(0.0)
     if two_phase != 0:

@@ -229,13 +229,13 @@ class ColliderStage(Stage):
 
     name = "colliders"
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        self.dim = sim.grid.dim
-        self.colliders = sim.scene.colliders
-        self.shapes = wp.array([_shape(c, self.dim) for c in self.colliders], dtype=Shape, device=sim.device)
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings)
+        self.dim = ctx.grid.dim
+        self.colliders = ctx.scene.colliders
+        self.shapes = wp.array([_shape(c, self.dim) for c in self.colliders], dtype=Shape, device=ctx.device)
         self.moving = any(c.moves for c in self.colliders)
-        self.collider_of_cell = wp.zeros(sim.grid.cells, dtype=wp.int32, device=sim.device)
+        self.collider_of_cell = wp.zeros(ctx.grid.cells, dtype=wp.int32, device=ctx.device)
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -246,28 +246,28 @@ class ColliderStage(Stage):
     def incoming_speed(self, t0: float, t1: float) -> float:
         return max(c.speed_between(t0, t1) for c in self.colliders)
 
-    def inside(self, sim, positions: np.ndarray, t: float = 0.0) -> np.ndarray:
+    def inside(self, ctx, positions: np.ndarray, t: float = 0.0) -> np.ndarray:
         """Which of these points are inside a collider at time t (seeding drops them)."""
-        x = wp.array(np.asarray(positions, np.float32), dtype=wp.vec3, device=sim.device)
-        out = wp.zeros(len(positions), dtype=wp.int32, device=sim.device)
-        sim.launch(inside_any_collider, len(positions), [self.shapes, x, t, self.dim, out])
+        x = wp.array(np.asarray(positions, np.float32), dtype=wp.vec3, device=ctx.device)
+        out = wp.zeros(len(positions), dtype=wp.int32, device=ctx.device)
+        ctx.launch(inside_any_collider, len(positions), [self.shapes, x, t, self.dim, out])
         return out.numpy().astype(bool)
 
-    def on_cells(self, sim, dt: float):
-        g = sim.grid
-        sim.launch(mark_collider_cells, g.cells,
-                   [self.shapes, sim.time, sim.geometry, sim.fields.types, self.collider_of_cell])
+    def on_cells(self, ctx, dt: float):
+        g = ctx.grid
+        ctx.launch(mark_collider_cells, g.cells,
+                   [self.shapes, ctx.time, ctx.geometry, ctx.fields.types, self.collider_of_cell])
 
-    def on_faces(self, sim, dt: float):
-        self.on_extended(sim, sim.fields.vel)
+    def on_faces(self, ctx, dt: float):
+        self.on_extended(ctx, ctx.fields.vel)
 
-    def on_extended(self, sim, vel):
+    def on_extended(self, ctx, vel):
         """Moving colliders' velocity on the faces they touch, of this face field."""
-        for a in sim.grid.axes:
-            sim.launch(moving_collider_faces, sim.grid.face_shape(a),
-                       [self.shapes, self.collider_of_cell, sim.time, a, vel[a]])
+        for a in ctx.grid.axes:
+            ctx.launch(moving_collider_faces, ctx.grid.face_shape(a),
+                       [self.shapes, self.collider_of_cell, ctx.time, a, vel[a]])
 
-    def end_step(self, sim, dt: float):
-        p = sim.particles
-        sim.launch(push_out_of_colliders, p.count,
-                   [self.shapes, sim.time + dt, sim.geometry, p.active, p.x, p.v])
+    def end_step(self, ctx, dt: float):
+        p = ctx.particles
+        ctx.launch(push_out_of_colliders, p.count,
+                   [self.shapes, ctx.time + dt, ctx.geometry, p.active, p.x, p.v])

@@ -1,7 +1,7 @@
 """Emitters: a pouring stream of liquid and an air stone releasing gas bubbles.
 
 Both work on the host at the start of a step and append particles (Simulation.add_particles).
-Their progress (stream length owed, bubbles owed, how many emitted) lives in sim.host_state, so a
+Their progress (stream length owed, bubbles owed, how many emitted) lives in the stage's state, so a
 resumed run emits exactly what an uninterrupted one does; every random draw is seeded by
 (scene seed, emitter, count), never by a global generator.
 
@@ -11,7 +11,7 @@ one-cell slab, pi r^2 dx, sub-grid bubbles too: a bubble is the same gas whichev
 
 A stream delivers what the liquid lets in: a particle whose cell the liquid already fills past
 CROWDED_FILL (a nozzle under water, aimed at a wall, or in a full box) is not laid, and
-host_state["inflow_volume"] books what each stream owed and what it delivered (the run's summary
+the state's inflow books what each stream owed and what it delivered (the run's summary
 says when it is less). Laid anyway, such layers crowded the liquid into 0.84-0.89 of its rest volume.
 
 Where a bubble goes (all of a step's bubbles at once, from the particles as they are now, so a
@@ -20,10 +20,11 @@ resumed run decides alike; one read, docs/host_syncs.md):
   block): the gas joins the atmosphere at once, its mass booked as vented. Before, such bubbles
   were added on top of the gas already there (a gas-only box claimed 1.7 times its volume in gas);
 - into the liquid: its particles are added and the fluid around makes room, the volume-preserving
-  radial push r' = (r^d + R^d)^(1/d) within PUSH_REACH R (effects/subgrid.py's gather does the
-  same), liquid and resolved gas alike. Before, the new gas sat on top of the water, so water
-  and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames). What the
-  push carries past an open wall leaves (booked as outflow); past a closed one it is clamped;
+  radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's gather uses it within 4 R), liquid and
+  resolved gas alike, by as much as the bubble overlaps, everywhere, with the bubble's images
+  across the closed walls (EmitterStage._make_room). Before, the new gas sat on top of the water,
+  so water and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames).
+  What the push carries past an open wall leaves (booked as outflow); past a closed one it is clamped;
 - into a domain the liquid cannot leave (no open wall but the top) with no room left for it (the
   liquid's rest volume, the gas's and the new bubble's above the room): the run stops,
   GasRoomError naming the injector. Injected gas is at ambient pressure: nothing here compresses
@@ -34,6 +35,7 @@ resumed run decides alike; one read, docs/host_syncs.md):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -42,13 +44,15 @@ from ..core.cells import cell_of
 from ..core.geometry import GridGeometry
 from ..core.grid import ACTIVE, AIRBORNE, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID
 from ..core.simulation import SimulationError
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.transfer_kernels import CELL_OFFSET, grid_coord, make_stencil
 from ..core.boundary import clamp_to_domain, keep_in_domain, open_wall_exit
 from ..scene.capacity import MAX_INJECTED_GAUGE, draining_walls, room_and_seeded_liquid
 from ..scene.limits import max_gauge_pressure
 from ..scene.effects import GasInjector, LiquidInflow
-from .subgrid import PUSH_REACH, pushed_from
+from .nozzle_walls import open_nozzles, walled_nozzles
+from .subgrid import pushed_from
 
 wp.set_module_options({"enable_backward": False})
 
@@ -186,6 +190,41 @@ def make_room(
 
 
 @wp.kernel
+def overlapped_volume(
+    centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64), n: int, first_new: int,
+    dim: int, phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3),
+    vol0: wp.array(dtype=float), J: wp.array(dtype=float), held: wp.array(dtype=wp.float64),
+):
+    """held[b]: the volume of the fluid that make_room pushes (liquid at rest volume, resolved gas
+    at V0 J; not the new bubbles, from first_new on) whose particles lie inside bubble b's ball."""
+    p = wp.tid()
+    if p >= first_new or active[p] != ACTIVE or (phase[p] != PHASE_LIQUID and phase[p] != PHASE_GAS):
+        return
+    volume = wp.float64(vol0[p])
+    if phase[p] == PHASE_GAS:
+        volume = wp.float64(vol0[p] * J[p])
+    xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
+    for b in range(n):
+        d = xd - centres[b]
+        if dim == 2:
+            d[2] = wp.float64(0.0)
+        radius = wp.pow(radius_pow[b], wp.float64(1.0) / wp.float64(dim))
+        if wp.dot(d, d) < radius * radius:
+            wp.atomic_add(held, b, volume)
+
+
+@wp.kernel
+def push_what_is_there(held: wp.array(dtype=wp.float64), unit: wp.float64, radius_pow: wp.array(dtype=wp.float64),
+                       source: wp.array(dtype=wp.int32), strength: wp.array(dtype=wp.float64)):
+    """Push i (bubble source[i] or one of its images) pushes aside the volume that bubble's ball
+    overlaps (held), not more: strength[i], its R^d, is that volume's (unit: the volume of a ball of
+    radius 1; 2D: a disk through the slab), at most the bubble's own radius_pow."""
+    i = wp.tid()
+    b = source[i]
+    strength[i] = wp.min(radius_pow[b], held[b] / unit)
+
+
+@wp.kernel
 def pack_sites(top: wp.array(dtype=wp.int32), held: wp.array(dtype=wp.float64), least_J: wp.array(dtype=float),
                out: wp.array(dtype=wp.float64)):
     """top, held and least_J in one array, for one read."""
@@ -221,31 +260,52 @@ def _lattice_in_ball(radius: float, spacing: float, dim: int, rng) -> np.ndarray
     return pts if len(pts) else np.zeros((1, dim))
 
 
+@dataclass
+class EmitterState(HostState):
+    # per emitter: [amount owed (stream length, m / bubbles), number emitted so far]
+    progress: np.ndarray = saved("emitters", factory=lambda: np.zeros((0, 2)))
+    # per emitter: [volume its stream owed (layers x layer volume), volume delivered] (m^3; 2D: the
+    # one-cell slab). A blocked nozzle delivers less (_deliver): the summary says so.
+    inflow: np.ndarray = saved("inflow_volume", factory=lambda: np.zeros((0, 2)))
+
+
 class EmitterStage(Stage):
     """[[emitters]]: particles added at the start of each step; their speed enters the CFL limit
     before any particle has it."""
 
     name = "emitters"
+    graph_safe = True  # begin_step runs outside the graphs; the nozzles' faces read their speeds from a device array
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        scene = sim.scene
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings)
+        scene = ctx.scene
         self.dim = scene.dim
         self.dx = scene.domain.dx
         self.spacing = self.dx / scene.solver.particles_per_cell ** (1.0 / self.dim)
         self.seed = scene.solver.seed
         self.materials = list(scene.materials)
         self.emitters = scene.emitters
-        # per emitter: [amount owed (stream length, m / bubbles), number emitted so far]
-        sim.host_state["emitters"] = np.zeros((len(self.emitters), 2))
-        # per emitter: [volume its stream owed (layers x layer volume), volume delivered] (m^3; 2D: the
-        # one-cell slab). A blocked nozzle delivers less (_deliver): the summary says so.
-        sim.host_state["inflow_volume"] = np.zeros((len(self.emitters), 2))
+        self.state = EmitterState(np.zeros((len(self.emitters), 2)), np.zeros((len(self.emitters), 2)))
         # The room a domain the liquid cannot leave has for liquid and gas (m^3; 2D: the one-cell
         # slab), colliders where they stand at t = 0; None where the liquid drains (open walls).
         self.room = None
         if any(isinstance(e, GasInjector) for e in self.emitters) and not draining_walls(scene.domain):
             self.room = room_and_seeded_liquid(scene)[0] * (self.dx if self.dim == 2 else 1.0)
+        # Streams whose nozzle is against a closed wall behind it open that wall (effects/nozzle_walls.py).
+        self.walled = walled_nozzles(scene, ctx.geometry)
+        self.walled_speed = wp.zeros(len(self.walled), dtype=float, device=ctx.device)  # this step's, per stream
+
+    def hooks(self) -> set[str]:
+        hooks = super().hooks()
+        if not self.walled:  # no wall to open: the grid hooks would do nothing
+            hooks -= {"on_faces", "on_extended"}
+        return hooks
+
+    def on_faces(self, ctx, dt: float):
+        self.on_extended(ctx, ctx.fields.vel)
+
+    def on_extended(self, ctx, vel):
+        open_nozzles(ctx, [self.emitters[i] for i in self.walled], self.walled_speed, vel)
 
     def _point(self, v) -> np.ndarray:
         """A scene position as a 3-vector; 2D particles sit mid-slab (z = dx/2) like the seeded ones."""
@@ -257,15 +317,23 @@ class EmitterStage(Stage):
     def incoming_speed(self, t0: float, t1: float) -> float:
         return max(e.speed_between(t0, t1) for e in self.emitters)
 
-    def begin_step(self, sim, dt: float):
-        t = sim.time
-        state = sim.host_state["emitters"]
+    def summary_lines(self, ctx) -> list[str]:
+        """A line for each stream that delivered less than it owed (_deliver refused crowded cells)."""
+        return [f"  [emitters.{i}] delivered {100 * delivered / owed:.0f}% of its stream: its nozzle's cells "
+                f"were full of liquid (submerged, or the stream blocked)"
+                for i, (owed, delivered) in enumerate(self.state.inflow) if delivered < owed * (1.0 - 1e-9)]
+
+    def begin_step(self, ctx, dt: float):
+        t = ctx.time
+        state = self.state.progress
         bubbles, layers = [], []  # this step's, placed together (_release, _deliver)
+        flowing = set()
         for i, e in enumerate(self.emitters):
             stop = math.inf if e.stop is None else e.stop
             overlap = min(t + dt, stop) - max(t, e.start)
             if overlap <= 0.0:
                 continue
+            flowing.add(i)
             if isinstance(e, LiquidInflow):
                 state[i, 0] += e.speed * overlap
                 while state[i, 0] >= self.spacing:
@@ -279,12 +347,15 @@ class EmitterStage(Stage):
                     state[i, 0] -= 1.0
                     bubbles.append(self._bubble(i, e, int(state[i, 1])))
                     state[i, 1] += 1
+        if self.walled:  # the streams opening a wall flow in this step, or not (a copy, no read)
+            speeds = [self.emitters[i].speed * (i in flowing) for i in self.walled]
+            self.walled_speed.assign(np.array(speeds, np.float32))
         if layers:
-            self._deliver(sim, layers)
+            self._deliver(ctx, layers)
         if bubbles:
-            self._release(sim, bubbles)
+            self._release(ctx, bubbles)
 
-    def _deliver(self, sim, layers: list[tuple]):
+    def _deliver(self, ctx, layers: list[tuple]):
         """Add this step's stream layers, each particle only where its cell is not crowded already:
         a nozzle under water or aimed at a wall delivers what the liquid lets in. Laid into cells
         already full, the new particles crowded the liquid (a run's liquid in 0.84-0.89 of its rest
@@ -292,27 +363,27 @@ class EmitterStage(Stage):
         fill is splatted from the particles as they are now (not the last step's fields.liq_volume,
         which a resumed run has not yet made), one read of the layers' cells per step that lays any
         (docs/host_syncs.md)."""
-        positions = np.concatenate([self._inside(sim, layer[1]) for layer in layers])
-        cells = np.floor((positions - np.asarray(sim.grid.origin)) / self.dx).astype(np.int64)
+        positions = np.concatenate([self._inside(ctx, layer[1]) for layer in layers])
+        cells = np.floor((positions - np.asarray(ctx.grid.origin)) / self.dx).astype(np.int64)
         if self.dim == 2:
             cells[:, 2] = 0  # the splat's one layer of cells
         lo = cells.min(0)
         size = cells.max(0) - lo + 1
-        box = wp.zeros(int(np.prod(size)), dtype=float, device=sim.device)
-        p = sim.particles
+        box = wp.zeros(int(np.prod(size)), dtype=float, device=ctx.device)
+        p = ctx.particles
         if p.count:
-            sim.launch(fill_box, p.count, [p.x, p.phase, p.active, p.vol0, sim.geometry, wp.vec3i(*lo.tolist()),
+            ctx.launch(fill_box, p.count, [p.x, p.phase, p.active, p.vol0, ctx.geometry, wp.vec3i(*lo.tolist()),
                                            wp.vec3i(*size.tolist()), box])
-        held = sim.read_host(box).reshape(tuple(size))
+        held = ctx.read_host(box).reshape(tuple(size))
         room = held[tuple((cells - lo).T)] <= CROWDED_FILL * self.dx**3
-        start, delivered = 0, sim.host_state["inflow_volume"]
+        start, delivered = 0, self.state.inflow
         for i, points, velocity, material, layer_volume in layers:
             keep = room[start:start + len(points)]
             start += len(points)
             delivered[i, 0] += layer_volume
             delivered[i, 1] += layer_volume * keep.sum() / len(points)
             if keep.any():
-                self._add(sim, points[keep], np.tile(velocity, (int(keep.sum()), 1)), material,
+                self._add(ctx, points[keep], np.tile(velocity, (int(keep.sum()), 1)), material,
                           layer_volume / len(points))
 
     def _stream_layer(self, i, e: LiquidInflow, travelled: float, count: int) -> tuple:
@@ -348,36 +419,36 @@ class EmitterStage(Stage):
         return {"emitter": i, "material": e.material, "radius": radius, "volume": volume, "rng": rng,
                 "centre": self._point(e.center) + offset, "velocity": self._vector(e.velocity)}
 
-    def _release(self, sim, bubbles: list[dict]):
+    def _release(self, ctx, bubbles: list[dict]):
         """Add this step's bubbles, vent those due in the open air, push the fluid out of the others
         (the module docstring). In a domain the liquid cannot leave that may be full (_may_fill) the
         host reads the sites first: it needs the room left to compress the gas or stop the run."""
-        g, dev = sim.grid, lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
+        g, dev = ctx.grid, lambda a, t: wp.array(a, dtype=t, device=ctx.device)  # noqa: E731
         eps = 1e-4 * g.dx  # a centre outside the domain (a spread past a wall) counts as its edge cell's
         at = np.clip(np.array([b["centre"] for b in bubbles]), eps, np.asarray(g.domain_size) - eps)
         cells = np.floor((at - np.asarray(g.origin)) / g.dx).astype(np.int32)
-        top, held, least_J = self._sites(sim, dev(cells, wp.vec3i))
+        top, held, least_J = self._sites(ctx, dev(cells, wp.vec3i))
         factor, vent_on_device = 1.0, True
         for k, b in enumerate(bubbles):
             b["site"] = k
-        if self.room is not None and self._may_fill(sim, bubbles):
-            in_air, measured = self._read_sites(sim, top, held, least_J, cells)
-            densities = {name: m.density for name, m in sim.scene.materials.items()}
+        if self.room is not None and self._may_fill(ctx, bubbles):
+            in_air, measured = self._read_sites(ctx, top, held, least_J, cells)
+            densities = {name: m.density for name, m in ctx.scene.materials.items()}
             vented = sum(densities[b["material"]] * b["volume"] for b, air in zip(bubbles, in_air) if air)
             if vented > 0.0:
-                sim.launch(book_vented, 1, [sim.fields.vented_mass, wp.float64(vented)])
+                ctx.launch(book_vented, 1, [ctx.fields.vented_mass, wp.float64(vented)])
             bubbles = [b for b, air in zip(bubbles, in_air) if not air]
             if not bubbles:
                 return
-            factor, vent_on_device = self._room_factor(sim, bubbles, measured), False
-        subgrid = sim.stage("subgrid_bubbles")
-        first_new, owner, pushes = sim.particles.count, [], []
+            factor, vent_on_device = self._room_factor(ctx, bubbles, measured), False
+        subgrid = ctx.stage("subgrid_bubbles")
+        first_new, owner, pushes = ctx.particles.count, [], []
         for b in bubbles:
             mat = self.materials.index(b["material"])
             if subgrid and b["radius"] < subgrid.settings.radius:
                 # A sub-grid bubble is a sphere: in 2D the one holding the disk's volume.
                 r = (3.0 * b["volume"] / (4.0 * math.pi)) ** (1.0 / 3.0)
-                subgrid.add_bubbles(sim, b["centre"][None], np.array([r]), b["velocity"][None], mat)
+                subgrid.add_bubbles(ctx, b["centre"][None], np.array([r]), b["velocity"][None], mat)
                 owner.append(b["site"])
                 continue
             # Compressed (factor < 1), the bubble fills a smaller ball: that is the room it takes.
@@ -385,49 +456,88 @@ class EmitterStage(Stage):
             pts = _lattice_in_ball(radius, self.spacing, self.dim, b["rng"])
             positions = np.tile(b["centre"], (len(pts), 1))
             positions[:, : self.dim] += pts
-            self._add(sim, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
+            self._add(ctx, positions, np.tile(b["velocity"], (len(pts), 1)), b["material"], b["volume"] / len(pts))
             owner += [b["site"]] * len(pts)
-            pushes.append((b["centre"], radius**self.dim, PUSH_REACH * radius, b["site"]))
-        p, cells_dev = sim.particles, dev(cells, wp.vec3i)
+            pushes.append((b["centre"], radius**self.dim, b["site"]))
+        p, cells_dev = ctx.particles, dev(cells, wp.vec3i)
         if vent_on_device:
-            sim.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
-                                                   sim.geometry, p.mass, p.active, sim.fields.vented_mass])
+            ctx.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
+                                                   ctx.geometry, p.mass, p.active, ctx.fields.vented_mass])
         if pushes and factor == 1.0:  # compressed, there is no room to push into: the gas gave it
-            centres, radius_pow, reach, site = (np.array(col) for col in zip(*pushes))
-            sim.launch(make_room, first_new, [dev(centres.astype(np.float64), wp.vec3d),
-                                              dev(radius_pow.astype(np.float64), wp.float64),
-                                              dev(reach.astype(np.float64), wp.float64),
-                                              dev(site.astype(np.int32), wp.int32), cells_dev, top, len(pushes),
-                                              first_new, sim.geometry, p.phase, p.active, p.x])
-            sim.book_outflow()  # what the push carried through an open wall
+            self._make_room(ctx, pushes, first_new, cells_dev, top)
         if factor < 1.0:
-            sim.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
+            ctx.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
 
-    def _sites(self, sim, cells):
+    def _make_room(self, ctx, pushes: list[tuple], first_new: int, cells, top):
+        """The fluid makes room for this step's new bubbles (pushes: (centre, R^d, site) each) by
+        make_room's radial push, with an unbounded reach, each bubble's R^d cut to the volume of the
+        fluid its ball overlaps (overlapped_volume, before any push; no read), the bubble pushing
+        along with its mirror images across the closed walls (_images).
+
+        Unbounded: the push keeps the volume of what it moves, but cut off at a reach (it was 4 R)
+        it moves the fluid inside onto the fluid outside, which stays: the bubble's whole volume
+        crowded onto the cut-off's shell. Cut to the overlap: a bubble released in the air beside
+        the water (under a stream, so not in the open air) pushed a column 2-4 cm away by its full
+        volume. Together: 2-5% of the liquid's room lost per bubble there, 1% after. Images: a
+        closed wall stops what is pushed into it, crowding the liquid against it; a bubble and its
+        mirror image push nothing through the mirror (the method of images; a box would need them
+        repeated without end, the first ones take most of it). Over the fuzz's injector scenes
+        (tests/test_run_fuzz.py) the most crowded liquid went from 0.89 to 0.93 of its room; without
+        the images two scenes held liquid and gas 5% above their box."""
+        p, dev = ctx.particles, lambda a, t: wp.array(a, dtype=t, device=ctx.device)  # noqa: E731
+        centres, radius_pow, site = (np.array(col) for col in zip(*pushes))
+        held = wp.zeros(len(pushes), dtype=wp.float64, device=ctx.device)
+        ctx.launch(overlapped_volume, first_new, [dev(centres.astype(np.float64), wp.vec3d),
+                                                  dev(radius_pow.astype(np.float64), wp.float64), len(pushes),
+                                                  first_new, self.dim, p.phase, p.active, p.x, p.vol0, p.J, held])
+        images = [(c, k) for k, centre in enumerate(centres) for c in self._images(ctx, centre)]
+        source = np.array([k for _, k in images], np.int32)
+        strength = wp.zeros(len(images), dtype=wp.float64, device=ctx.device)
+        unit = 4.0 / 3.0 * math.pi if self.dim == 3 else math.pi * self.dx
+        ctx.launch(push_what_is_there, len(images),
+                   [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64), dev(source, wp.int32), strength])
+        ctx.launch(make_room, first_new, [dev(np.array([c for c, _ in images], np.float64), wp.vec3d), strength,
+                                          dev(np.full(len(images), np.inf), wp.float64),
+                                          dev(site[source].astype(np.int32), wp.int32), cells, top, len(images),
+                                          first_new, ctx.geometry, p.phase, p.active, p.x])
+        ctx.book_outflow()  # what the push carried through an open wall
+
+    def _images(self, ctx, centre) -> list[np.ndarray]:
+        """centre and its mirror images across the closed walls: on each axis none, the low wall or
+        the high wall (where closed), every combination (across a corner: a wall's image mirrored
+        across the other)."""
+        g, size = ctx.geometry, ctx.grid.domain_size
+        choices = [[centre[a]] for a in range(3)]
+        for a in range(self.dim):
+            choices[a] += [-centre[a]] if not g.open_lo[a] else []
+            choices[a] += [2.0 * size[a] - centre[a]] if not g.open_hi[a] else []
+        return [np.array([x, y, z]) for x in choices[0] for y in choices[1] for z in choices[2]]
+
+    def _sites(self, ctx, cells):
         """The device's measures of the bubbles' sites and the fluid (injection_sites): no read."""
-        p, n = sim.particles, cells.shape[0]
-        top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=sim.device)
-        held = wp.zeros(3, dtype=wp.float64, device=sim.device)
-        least_J = wp.full(1, 1.0, dtype=float, device=sim.device)
+        p, n = ctx.particles, cells.shape[0]
+        top = wp.full(n, NO_LIQUID, dtype=wp.int32, device=ctx.device)
+        held = wp.zeros(3, dtype=wp.float64, device=ctx.device)
+        least_J = wp.full(1, 1.0, dtype=float, device=ctx.device)
         if p.count:
-            sim.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, sim.geometry, cells, n, top,
+            ctx.launch(injection_sites, p.count, [p.x, p.phase, p.active, p.vol0, p.J, ctx.geometry, cells, n, top,
                                                   held, least_J])
         return top, held, least_J
 
-    def _read_sites(self, sim, top, held, least_J, cells) -> tuple[np.ndarray, dict]:
+    def _read_sites(self, ctx, top, held, least_J, cells) -> tuple[np.ndarray, dict]:
         """(in the open air, per bubble; what the fluid holds now: "liquid" rest volume, "gas" volume V0 J
         and "gas_rest" V0, the gas's "least_J"), in one read."""
         n = len(cells)
-        out = wp.zeros(n + 4, dtype=wp.float64, device=sim.device)
-        sim.launch(pack_sites, n + 4, [top, held, least_J, out])
-        result = sim.read_host(out)
+        out = wp.zeros(n + 4, dtype=wp.float64, device=ctx.device)
+        ctx.launch(pack_sites, n + 4, [top, held, least_J, out])
+        result = ctx.read_host(out)
         tops = result[:n]
-        up, sign = sim.up
+        up, sign = ctx.up
         in_air = sign * cells[:, up] > tops if up >= 0 else tops == NO_LIQUID
         names = ("liquid", "gas", "gas_rest", "least_J")
         return in_air, {k: float(v) for k, v in zip(names, result[n:])}
 
-    def _may_fill(self, sim, bubbles: list[dict]) -> bool:
+    def _may_fill(self, ctx, bubbles: list[dict]) -> bool:
         """Whether the liquid, the gas and this step's bubbles may exceed the room, by bounds the host
         knows without a read: the liquid ever added at its rest volume (closed: none left), the gas
         ever added (Simulation.add_particles' ledger, which conversions only raise, and entrained air)
@@ -436,20 +546,21 @@ class EmitterStage(Stage):
         expand more; bounding them by their 0.1-atmosphere floor (10 times) read the room on most
         steps of a splash with 5% gas, so this gate trusts the resolved gas's measure. Only where the
         bound may exceed the room is the room read (docs/host_syncs.md)."""
-        mats = list(sim.scene.materials.values())
-        hs, p_atm = sim.host_state, sim.scene.domain.ambient_pressure
-        liquid = float(hs["liquid_added"][0]) / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
-        gas_mass = float(hs.get("gas_added", np.full(1, np.inf))[0]) + float(hs.get("gas_mass_entrained", np.zeros(1))[0])
-        gauge = float(hs.get("gas_gauge", np.full(1, np.nan))[0])
+        mats = list(ctx.scene.materials.values())
+        ledger, p_atm = ctx.ledger, ctx.scene.domain.ambient_pressure
+        gas_stage, entrainment = ctx.stage("gas"), ctx.stage("entrainment")
+        liquid = ledger.liquid_added / min((m.density for m in mats if m.kind == "liquid"), default=1.0)
+        gas_mass = ledger.gas_added + (entrainment.state.gas_mass if entrainment else 0.0)
+        gauge = gas_stage.state.gauge if gas_stage else math.nan
         if math.isnan(gauge):  # the first step: the gas is as the shapes seeded it
-            gauge = max((abs(s.pressure or 0.0) for s in sim.scene.shapes), default=0.0)
-        if float(hs.get("gas_cavity", np.ones(1))[0]) != 0.0:
+            gauge = max((abs(s.pressure or 0.0) for s in ctx.scene.shapes), default=0.0)
+        if (gas_stage.state.cavity if gas_stage else 1.0) != 0.0:
             return True  # a near vacuum's gas may expand without bound
         J = p_atm / max(p_atm - gauge, 0.1 * p_atm)
         gas = gas_mass / min(m.density for m in mats if m.is_gas) * J
         return liquid + gas + sum(b["volume"] for b in bubbles) > self.room
 
-    def _room_factor(self, sim, bubbles: list[dict], held: dict) -> float:
+    def _room_factor(self, ctx, bubbles: list[dict], held: dict) -> float:
         """1, or in a domain the liquid cannot leave that has no room for this step's bubbles at
         ambient pressure, the factor every gas particle's J takes (new bubbles included) so that the
         gas fills exactly the room the liquid leaves it: a closed box of water takes gas in only by
@@ -461,7 +572,7 @@ class EmitterStage(Stage):
         if self.room is None or held["liquid"] + held["gas"] + new <= self.room:
             return 1.0
         space, gas = self.room - held["liquid"], held["gas"] + new
-        mats = [m for m in sim.scene.materials.values() if m.is_gas]
+        mats = [m for m in ctx.scene.materials.values() if m.is_gas]
         key = f"[emitters.{bubbles[0]['emitter']}]"
         if space <= 0.0 or any(m.eos == "incompressible" for m in mats):
             why = ("the liquid fills all of it" if space <= 0.0
@@ -469,26 +580,26 @@ class EmitterStage(Stage):
         else:
             factor = space / gas
             gamma = max(m.gamma if m.eos == "adiabatic" else 1.0 for m in mats)
-            p_atm = sim.scene.domain.ambient_pressure
+            p_atm = ctx.scene.domain.ambient_pressure
             gauge = p_atm * (min(held["least_J"], 1.0) * factor) ** -gamma - p_atm  # the most compressed gas's
-            bound = min(float(max_gauge_pressure(sim.scene.materials)), MAX_INJECTED_GAUGE * p_atm)
+            bound = min(float(max_gauge_pressure(ctx.scene.materials)), MAX_INJECTED_GAUGE * p_atm)
             if gauge <= bound:
                 return factor
             why = (f"the gas, {gas / space:.3g} times its room, would be at {gauge:.4g} Pa gauge, above the "
                    f"{bound:.4g} Pa that compressed gas is held to here ({MAX_INJECTED_GAUGE:g} x "
                    f"[domain].ambient_pressure, beyond which the solve does not keep it at Boyle's pressure)")
-        stop = f", or {key}.stop <= {sim.time:.4g} s" if sim.time > self.emitters[bubbles[0]["emitter"]].start else ""
+        stop = f", or {key}.stop <= {ctx.time:.4g} s" if ctx.time > self.emitters[bubbles[0]["emitter"]].start else ""
         raise GasRoomError(
-            f"t = {sim.time:.6g} s: {key} (gas_injector) releases gas into a domain the liquid cannot leave "
+            f"t = {ctx.time:.6g} s: {key} (gas_injector) releases gas into a domain the liquid cannot leave "
             f"and has no room for it: {why}. Fixes: an open wall the liquid can leave through (not the top), "
             f"less liquid, a lower {key}.rate or {key}.radius{stop}")
 
-    def _inside(self, sim, positions):
+    def _inside(self, ctx, positions):
         eps = 1e-4 * self.dx
-        return np.clip(positions, eps, np.array(sim.grid.domain_size) - eps)  # like the transfers' clamp
+        return np.clip(positions, eps, np.array(ctx.grid.domain_size) - eps)  # like the transfers' clamp
 
-    def _add(self, sim, positions, velocities, material: str, volume_each: float):
-        positions = self._inside(sim, positions)  # never outside
+    def _add(self, ctx, positions, velocities, material: str, volume_each: float):
+        positions = self._inside(ctx, positions)  # never outside
         n = len(positions)
-        sim.add_particles(positions.astype(np.float32), velocities.astype(np.float32),
+        ctx.add_particles(positions.astype(np.float32), velocities.astype(np.float32),
                           np.full(n, self.materials.index(material), np.int32), np.full(n, volume_each))

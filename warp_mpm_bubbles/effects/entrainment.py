@@ -1,4 +1,4 @@
-"""Entrainment (issue #4, item 3): sub-grid bubbles seeded where a splash traps air.
+"""Entrainment: sub-grid bubbles seeded where a splash traps air.
 
 Entrainment (Ihmsen et al. 2012, trapped-air potential, on grid cells): for a liquid cell with air
 in its 3^dim neighbourhood, I = sum_n W_n |u_cn| (1 - u^_cn . x^_cn) / sum_n W_n over its fluid
@@ -17,13 +17,15 @@ The capacity (checkpointed) doubles after a step that seeds more; that step's ex
 at the read-back, without its first sub-grid move (logged in `overflows`).
 
 The seeds' gas is air the splash took from the atmosphere: once their count is known (settle) their
-mass is booked in host_state["gas_mass_entrained"] (kg, checkpointed), which Simulation.gas_budget
-subtracts from its total like the air core/voids.py books as trapped, so the total stays conserved.
+mass is booked in its state's gas_mass (kg, checkpointed as "gas_mass_entrained"), which
+Simulation.gas_budget subtracts from its total like the air core/voids.py books as trapped, so the
+total stays conserved.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -33,6 +35,7 @@ from ..core import kernel_args
 from ..core.geometry import GridGeometry
 from ..core.kernel_args import FaceField, Particles
 from ..core.grid import EMPTY, FLUID, PHASE_LIQUID, PHASE_SUBGRID
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.simulation import GAS_LAW_CODES
 from ..scene.effects import Entrainment
@@ -171,85 +174,90 @@ def seed_total(seeds: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32),
     report[1] = float(n)
 
 
+@dataclass
+class EntrainmentState(HostState):
+    capacity: int = saved("entrainment_capacity", 256)  # seed slots per step (doubled past an overflow)
+    gas_mass: float = saved("gas_mass_entrained", 0.0)  # kg taken from the air (module docstring)
+
+
 class EntrainmentStage(Stage):
     """[effects.entrainment]: seeds sub-grid bubbles after g2p, before the sub-grid stage moves them."""
 
     name = "entrainment"
     Settings = Entrainment
+    graph_safe = True
 
-    def __init__(self, sim, settings):
-        super().__init__(sim, settings)
-        n_cells = math.prod(sim.grid.cells)
-        self._seeds = wp.zeros(n_cells, dtype=wp.int32, device=sim.device)
-        self._first = wp.zeros(n_cells, dtype=wp.int32, device=sim.device)
-        self._total = wp.zeros(1, dtype=wp.int32, device=sim.device)
-        sim.host_state.setdefault("entrainment_capacity", np.array([256], np.int64))  # slots per step
-        sim.host_state.setdefault("gas_mass_entrained", np.zeros(1))  # kg taken from the air (module docstring)
+    def __init__(self, ctx, settings):
+        super().__init__(ctx, settings)
+        n_cells = math.prod(ctx.grid.cells)
+        self._seeds = wp.zeros(n_cells, dtype=wp.int32, device=ctx.device)
+        self._first = wp.zeros(n_cells, dtype=wp.int32, device=ctx.device)
+        self._total = wp.zeros(1, dtype=wp.int32, device=ctx.device)
+        self.state = EntrainmentState()
         self._pending = None  # (base, capacity, seed) while this step's seeds are provisional
         self.seeded = 0  # bubbles seeded since start (not checkpointed)
         self.overflows = 0  # steps that seeded more than the capacity (not checkpointed)
-        sim.report_readers.append(self._read_report)
+        ctx.report_readers.append(self._read_report)
         self._bubble = None
 
-    def _bubble_values(self, sim) -> Bubble:
+    def _bubble_values(self, ctx) -> Bubble:
         """Simulation.add_particles' values for one bubble of bubble_radius at ambient pressure (J0 = 1)."""
         if self._bubble is None:
-            index = sim.stage("subgrid_bubbles").gas_material
-            m = list(sim.scene.materials.values())[index]
+            index = ctx.stage("subgrid_bubbles").gas_material
+            m = list(ctx.scene.materials.values())[index]
             volume = 4.0 / 3.0 * math.pi * np.float64(self.settings.bubble_radius) ** 3
             b = self._bubble = Bubble()
             b.mass, b.vol0 = float(np.float32(m.density * volume)), float(np.float32(volume))
             b.material, b.gas_law, b.gas_gamma = index, GAS_LAW_CODES.get(m.eos, 0), float(np.float32(m.gamma))
         return self._bubble
 
-    def after_g2p(self, sim, dt: float):
-        s, g, f, p = self.settings, sim.grid, sim.fields, sim.particles
+    def after_g2p(self, ctx, dt: float):
+        s, g, f, p = self.settings, ctx.grid, ctx.fields, ctx.particles
         if s.rate == 0.0:
             return
         # One seed per step (scene seed, step index); the kernel hashes the cell index in.
-        seed = (int(sim.scene.solver.seed) * 1_000_003 + (sim.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
-        sim.launch(trapped_air, g.cells, [g.dim, dt, s.min_speed, s.max_speed, s.rate, seed, f.types, f.phase_cells,
+        seed = (int(ctx.scene.solver.seed) * 1_000_003 + (ctx.stats.steps + 1) * 2_654_435_761) & 0x7FFFFFFF
+        ctx.launch(trapped_air, g.cells, [g.dim, dt, s.min_speed, s.max_speed, s.rate, seed, f.types, f.phase_cells,
                                           kernel_args.face_field(f.vel), self._seeds])
         wp.utils.array_scan(self._seeds, self._first, inclusive=False)
-        sim.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
-        base, capacity = p.count, int(sim.host_state["entrainment_capacity"][0])
+        ctx.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
+        base, capacity = p.count, self.state.capacity
         p.reserve(base + capacity)
-        self._place(sim, seed, 0, capacity, base)
+        self._place(ctx, seed, 0, capacity, base)
         p.count = base + capacity  # provisional: the next stages' launches cover the seeds
         self._pending = (base, capacity, seed)
 
-    def _place(self, sim, seed, lo, hi, base):
-        f, p = sim.fields, sim.particles
-        sim.launch(place_seeds, sim.grid.cells,
-                   [seed, lo, hi, base, wp.int64(int(sim.host_state["next_id"][0])), sim.geometry,
-                    self._bubble_values(sim), self._seeds, self._first, kernel_args.face_field(f.vel), f.types,
-                    kernel_args.particle_arrays(p)])
+    def _place(self, ctx, seed, lo, hi, base):
+        f, p = ctx.fields, ctx.particles
+        ctx.launch(place_seeds, ctx.grid.cells,
+                   [seed, lo, hi, base, wp.int64(ctx.ledger.next_id), ctx.geometry, self._bubble_values(ctx),
+                    self._seeds, self._first, kernel_args.face_field(f.vel), f.types, kernel_args.particle_arrays(p)])
 
     @property
     def pending_total(self):
         """The device count of this step's seeds while the host has not read it, else None."""
         return self._total if self._pending else None
 
-    def _read_report(self, sim, report):
+    def _read_report(self, ctx, report):
         if self._pending:
             total = int(report[1])
             if total >= 1 << 24:  # past float32's exact integers (never in practice): the int itself
-                total = int(sim.read_host(self._total)[0])
-            self.settle(sim, total)
+                total = int(ctx.read_host(self._total)[0])
+            self.settle(ctx, total)
 
-    def settle(self, sim, total: int):
+    def settle(self, ctx, total: int):
         """The read-back gave this step's seed count: the particle count becomes exact."""
         base, capacity, seed = self._pending
         self._pending = None
-        p = sim.particles
+        p = ctx.particles
         p.count = base + min(total, capacity)
         if total > capacity:  # rare: the excess joins now; the next steps have room
             p.reserve(base + total)
-            self._place(sim, seed, capacity, total, base)
+            self._place(ctx, seed, capacity, total, base)
             p.count = base + total
-            sim.host_state["entrainment_capacity"] = np.array([2 * total], np.int64)
+            self.state.capacity = 2 * total
             self.overflows += 1
-        sim.host_state["next_id"] = sim.host_state["next_id"] + total
+        ctx.ledger.next_id += total
         # Every seed holds the same float32 mass (place_seeds): the booking matches the particles exactly.
-        sim.host_state["gas_mass_entrained"] = sim.host_state["gas_mass_entrained"] + total * self._bubble_values(sim).mass
+        self.state.gas_mass += float(total * self._bubble_values(ctx).mass)
         self.seeded += total

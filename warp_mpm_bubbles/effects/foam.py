@@ -1,4 +1,4 @@
-"""Foam at the free surface (issue #4, item 2): gas that reaches open air becomes foam instead of
+"""Foam at the free surface: gas that reaches open air becomes foam instead of
 venting, rides the surface for an exponentially distributed lifetime, then bursts.
 
 Foam particles are the gas particles themselves, relabelled in place (phase PHASE_FOAM, the foam
@@ -30,7 +30,7 @@ from ..core.cells import cell_of, is_solid
 from ..core import kernel_args
 from ..core.geometry import GridGeometry
 from ..core.kernel_args import FaceField, Particles
-from ..core.grid import PHASE_FOAM, PHASE_GAS
+from ..core.grid import PHASE_FOAM, PHASE_GAS, sphere_radius
 from ..core.stage import Stage
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
@@ -136,28 +136,35 @@ class FoamStage(Stage):
 
     name = "foam"
     Settings = Foam
+    graph_safe = True
+    gas_held = ("foam", "in foam")
 
-    def __init__(self, sim, settings):
-        super().__init__(sim, settings)
-        self.material = list(sim.scene.materials).index(settings.material)
-        sim.particles.add_field("foam_life", float)  # seconds left; checkpointed with the particles
-        g = sim.gravity
+    def __init__(self, ctx, settings):
+        super().__init__(ctx, settings)
+        self.material = list(ctx.scene.materials).index(settings.material)
+        ctx.particles.add_field("foam_life", float)  # seconds left; checkpointed with the particles
+        g = ctx.gravity
         g_mag = math.sqrt(sum(a * a for a in g))
         self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
-        self._seed = int(sim.scene.solver.seed) & 0x7FFFFFFF
+        self._seed = int(ctx.scene.solver.seed) & 0x7FFFFFFF
 
-    def after_g2p(self, sim, dt: float):
-        if not sim.has_gas:
+    def output_radii(self, particles: dict):
+        """Foam bubbles are real: written with the radius of their own volume."""
+        foam = particles["phase"] == PHASE_FOAM
+        return foam, sphere_radius(particles["volume"][foam])
+
+    def after_g2p(self, ctx, dt: float):
+        if not ctx.has_gas:
             return  # no gas, nothing ever becomes foam
-        f, p = sim.fields, sim.particles
-        self.advance(sim, dt)  # foam made this step has moved with the gas in g2p already
-        sim.launch(gas_to_foam, p.count,
-                   [self.material, self.settings.lifetime, self._seed, sim.geometry, f.types, f.ceiling,
+        f, p = ctx.fields, ctx.particles
+        self.advance(ctx, dt)  # foam made this step has moved with the gas in g2p already
+        ctx.launch(gas_to_foam, p.count,
+                   [self.material, self.settings.lifetime, self._seed, ctx.geometry, f.types, f.ceiling,
                     kernel_args.particle_arrays(p), p.foam_life])
 
-    def advance(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
-        sim.launch(advance_foam, p.count,
-                   [dt, self.settings.rise_speed, self._up, sim.geometry, kernel_args.face_field(f.vel), f.liq_volume,
+    def advance(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
+        ctx.launch(advance_foam, p.count,
+                   [dt, self.settings.rise_speed, self._up, ctx.geometry, kernel_args.face_field(f.vel), f.liq_volume,
                     f.types, kernel_args.particle_arrays(p), p.foam_life, f.vented_mass])
-        sim.book_outflow()  # foam blown through an open wall
+        ctx.book_outflow()  # foam blown through an open wall

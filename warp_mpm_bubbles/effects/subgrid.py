@@ -1,4 +1,4 @@
-"""Sub-grid bubbles (issue #4, item 3; entrainment.py seeds them where splashes trap air).
+"""Sub-grid bubbles (entrainment.py seeds them where splashes trap air).
 
 Sub-grid bubbles are gas particles of phase PHASE_SUBGRID: the core transfers skip them, and this
 stage moves them by buoyancy and drag relative to the liquid's interpolated velocity:
@@ -13,7 +13,7 @@ the cell's pressure by the particle's gas law, so bubbles expand as they rise.) 
 implicit: w_new solves w (m + dt k(|w|)) = m (v - u_l) + dt F_b, a scalar root along the right-hand
 side (the left side grows monotonically with |w|), found by bisection: stable at any dt, and at rest
 it is exactly the terminal balance F_b = k(U) U. Two-way: the momentum dt k w that the drag took
-from the bubble goes to the liquid's face velocities in the next step's grid stage, right after
+from the bubble goes to the liquid's face velocities in the next step's grid phase, right after
 u* = p/m + dt g, spread over the faces in proportion to the mass each holds (momentum-exact, lagged
 by one step). The fluid's side is thus explicit, so dt k is capped at the fluid mass the bubble's
 stencil holds (the drag law, its solve and the cap: effects/subgrid_drag.py).
@@ -35,12 +35,13 @@ those (two reads, docs/host_syncs.md), groups them, and the device retires and p
   The small void it leaves is refilled by the solver (holes are fluid, see classify_cells).
 Mass is conserved exactly: the merged masses are summed in float64, and the float32 rounding of
 the new particles' masses (below 2^-24 of the converted mass) is booked in
-host_state["gas_mass_rounding"], which Simulation.gas_budget adds to its total.
+its state (checkpointed as "gas_mass_rounding"), which Simulation.gas_budget adds to its total.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -51,6 +52,7 @@ from ..core.geometry import GridGeometry
 from ..core import kernel_args
 from ..core.kernel_args import CellPhases, FaceField, Particles
 from ..core.grid import ACTIVE, EMPTY, FLUID, PHASE_GAS, PHASE_LIQUID, PHASE_SUBGRID, connected_labels, sphere_radius
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..physics.gas import column_of, height_along
 from ..scene.effects import SubgridBubbles
@@ -288,26 +290,26 @@ def push_liquid(
 
 
 # ------------------------------------------------------------------------------------- host side
-def add_bubbles(sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
+def add_bubbles(ctx, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
     """Append sub-grid bubbles (numpy: positions (n, 3) or (n, dim), radii (n,) current, m;
     velocities like positions) of the gas material `material_index`; returns their index range.
     gauge_pressure (n,) compresses them as in Simulation.add_particles (default: at ambient)."""
     radii = np.asarray(radii, np.float64)
     n = len(radii)
-    pos, vel = _as_vec3(sim, positions, n), _as_vec3(sim, velocities, n, fill=0.0)
+    pos, vel = _as_vec3(ctx, positions, n), _as_vec3(ctx, velocities, n, fill=0.0)
     material = np.full(n, int(material_index), np.int32)
-    sl = sim.add_particles(pos, vel, material, 4.0 / 3.0 * math.pi * radii**3, gauge_pressure)
+    sl = ctx.add_particles(pos, vel, material, 4.0 / 3.0 * math.pi * radii**3, gauge_pressure)
     if n:
-        sim.particles.phase[sl].fill_(PHASE_SUBGRID)
-        sim.particles.subgrid_impulse[sl].zero_()
+        ctx.particles.phase[sl].fill_(PHASE_SUBGRID)
+        ctx.particles.subgrid_impulse[sl].zero_()
     return sl
 
 
-def _as_vec3(sim, a, n, fill=None):
+def _as_vec3(ctx, a, n, fill=None):
     a = np.asarray(a, np.float32).reshape(n, -1)
     if a.shape[1] == 3:
         return a
-    out = np.full((n, 3), 0.5 * sim.grid.dx if fill is None else fill, np.float32)  # 2D: mid-slab
+    out = np.full((n, 3), 0.5 * ctx.grid.dx if fill is None else fill, np.float32)  # 2D: mid-slab
     out[:, : a.shape[1]] = a
     return out
 
@@ -331,122 +333,134 @@ def _ball_lattice(n: int, spacing: float, dim: int) -> np.ndarray:
     return pts[order[:n]] * spacing
 
 
+@dataclass
+class ConversionRounding(HostState):
+    gas_mass: float = saved("gas_mass_rounding", 0.0)  # kg, see the module docstring
+
+
 class SubgridBubbleStage(Stage):
     """[effects.subgrid_bubbles]: the drag reaction on u* (on_momentum), bubbles moved and converted
     after g2p. Other stages add bubbles through `add_bubbles` (entrainment, emitters)."""
 
     name = "subgrid_bubbles"
     Settings = SubgridBubbles
+    graph_safe = True
+    gas_held = ("subgrid", "in sub-grid bubbles")
 
-    def __init__(self, sim, settings):
-        super().__init__(sim, settings)
-        materials = list(sim.scene.materials.values())
+    def output_radii(self, particles: dict):
+        """Sub-grid bubbles are real: written with the radius of their own volume."""
+        bubbles = particles["phase"] == PHASE_SUBGRID
+        return bubbles, sphere_radius(particles["volume"][bubbles])
+
+    def __init__(self, ctx, settings):
+        super().__init__(ctx, settings)
+        materials = list(ctx.scene.materials.values())
         liquids = [m for m in materials if m.kind == "liquid"]
         liquid = max(liquids, key=lambda m: m.density) if liquids else None
         self.rho_l = liquid.density if liquid else 1000.0
         self.mu = liquid.viscosity if liquid is not None and liquid.viscosity > 0.0 else WATER_VISCOSITY
         self.gas_material = next(i for i, m in enumerate(materials) if m.is_gas)  # for entrained bubbles
         self.threshold_volume = 4.0 / 3.0 * math.pi * settings.radius**3
-        sim.particles.add_field("subgrid_impulse", wp.vec3)
-        sim.host_state.setdefault("gas_mass_rounding", np.zeros(1))  # kg, see the module docstring
+        ctx.particles.add_field("subgrid_impulse", wp.vec3)
+        self.state = ConversionRounding()
         self.conversions = {"gathered": 0, "shrunk": 0}  # events since start (not checkpointed)
         self._flag = self._slot = None  # conversions' scratch: candidate flags and their scan
-        self._counts = wp.zeros(2, dtype=wp.int32, device=sim.device)  # candidates, entrainment's pending seeds
+        self._counts = wp.zeros(2, dtype=wp.int32, device=ctx.device)  # candidates, entrainment's pending seeds
 
-    def add_bubbles(self, sim, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
-        return add_bubbles(sim, positions, radii, velocities, material_index, gauge_pressure)
+    def add_bubbles(self, ctx, positions, radii, velocities, material_index: int, gauge_pressure=None) -> slice:
+        return add_bubbles(ctx, positions, radii, velocities, material_index, gauge_pressure)
 
-    def on_momentum(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
-        sim.launch(deposit_drag_reaction, p.count, [sim.geometry, kernel_args.particle_arrays(p), p.subgrid_impulse,
+    def on_momentum(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
+        ctx.launch(deposit_drag_reaction, p.count, [ctx.geometry, kernel_args.particle_arrays(p), p.subgrid_impulse,
                                                     kernel_args.face_field(f.face_mass), kernel_args.face_field(f.vel)])
 
-    def after_g2p(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
+    def after_g2p(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
         around = Surroundings()
-        around.rho_l, around.mu, around.p_atm = self.rho_l, self.mu, sim.scene.domain.ambient_pressure
-        sim.launch(advance_subgrid, p.count,
-                   [dt, sim.geometry, around, kernel_args.face_field(f.vel), kernel_args.face_field(f.face_mass),
+        around.rho_l, around.mu, around.p_atm = self.rho_l, self.mu, ctx.scene.domain.ambient_pressure
+        ctx.launch(advance_subgrid, p.count,
+                   [dt, ctx.geometry, around, kernel_args.face_field(f.vel), kernel_args.face_field(f.face_mass),
                     kernel_args.cell_phases(f), f.ceiling, f.pressure, kernel_args.particle_arrays(p), p.subgrid_impulse,
                     f.max_speed])
-        sim.book_outflow()  # bubbles carried through an open wall
-        if (sim.stats.steps + 1) % self.settings.convert_every == 0:
-            self.convert(sim)
+        ctx.book_outflow()  # bubbles carried through an open wall
+        if (ctx.stats.steps + 1) % self.settings.convert_every == 0:
+            self.convert(ctx)
 
     # ------------------------------------------------------------------ conversions (host)
-    def convert(self, sim):
+    def convert(self, ctx):
         """Both conversions from one snapshot: gathered sub-grid bubbles become resolved gas,
         small resolved clusters become sub-grid bubbles (see the module docstring). The device
         selects the candidates (sub-grid bubbles and resolved gas, in particle order); the host
         reads their count (with entrainment's pending one: a single read) and then their rows,
         never the full particle arrays, and writes back only what changes."""
-        p = sim.particles
-        counts = self._candidates(sim)
-        entrainment = sim.stage("entrainment")
+        p = ctx.particles
+        counts = self._candidates(ctx)
+        entrainment = ctx.stage("entrainment")
         if entrainment is not None and entrainment.pending_total is not None:
             wp.copy(counts, entrainment.pending_total, dest_offset=1, count=1)
-        n_candidates, entrained = (int(c) for c in sim.read_host(counts))
+        n_candidates, entrained = (int(c) for c in ctx.read_host(counts))
         if entrainment is not None and entrainment.pending_total is not None:
-            entrainment.settle(sim, entrained)  # the count is exact before anything is appended
+            entrainment.settle(ctx, entrained)  # the count is exact before anything is appended
         if n_candidates == 0:
             return
-        g = sim.grid
-        rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=sim.device)
-        sim.launch(pack_candidates, self._n,
+        g = ctx.grid
+        rows = wp.zeros((n_candidates, CANDIDATE_COLUMNS), dtype=wp.float64, device=ctx.device)
+        ctx.launch(pack_candidates, self._n,
                    [wp.vec3d(*g.origin), wp.float64(g.dx), wp.vec3i(*g.cells), g.dim, self._flag, self._slot,
-                    sim.fields.types, kernel_args.particle_arrays(p), rows])
-        rows = sim.read_host(rows)
+                    ctx.fields.types, kernel_args.particle_arrays(p), rows])
+        rows = ctx.read_host(rows)
         index, phase = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int32)
         snap = {"x": rows[:, 2:5], "v": rows[:, 5:8], "mass": rows[:, 8], "vol0": rows[:, 9], "J": rows[:, 10],
                 "material": rows[:, 11].astype(np.int32), "in_fluid": rows[:, 12] == 1.0}
-        groups_up = self._gathered(sim, snap, np.flatnonzero(phase == PHASE_SUBGRID))
-        groups_down = self._small_clusters(sim, snap, np.flatnonzero(phase == PHASE_GAS))
+        groups_up = self._gathered(ctx, snap, np.flatnonzero(phase == PHASE_SUBGRID))
+        groups_down = self._small_clusters(ctx, snap, np.flatnonzero(phase == PHASE_GAS))
         if not groups_up and not groups_down:
             return
         retired = index[np.concatenate(groups_up + groups_down)].astype(np.int32)
-        sim.launch(retire, len(retired), [wp.array(retired, dtype=wp.int32, device=sim.device), p.active])
+        ctx.launch(retire, len(retired), [wp.array(retired, dtype=wp.int32, device=ctx.device), p.active])
         # The liquid makes room on the device, each new bubble from where the previous one left it.
-        pushes = [self._to_resolved(sim, snap, members) for members in groups_up]
+        pushes = [self._to_resolved(ctx, snap, members) for members in groups_up]
         if pushes:
             centres, radius_pow, reach = (np.array(col, np.float64) for col in zip(*pushes))
             size = np.asarray(g.domain_size, np.float64)
-            dev = lambda a, t: wp.array(a, dtype=t, device=sim.device)  # noqa: E731
-            sim.launch(push_liquid, self._n,
+            dev = lambda a, t: wp.array(a, dtype=t, device=ctx.device)  # noqa: E731
+            ctx.launch(push_liquid, self._n,
                        [dev(centres, wp.vec3d), dev(radius_pow, wp.float64), dev(reach, wp.float64), len(pushes), g.dim,
                         wp.float64(1e-4 * g.dx), wp.vec3d(*(size - 1e-4 * g.dx)), p.phase, p.active, p.x])
         for members in groups_down:
-            self._to_subgrid(sim, snap, members)
+            self._to_subgrid(ctx, snap, members)
         self.conversions["gathered"] += len(groups_up)
         self.conversions["shrunk"] += len(groups_down)
 
-    def _candidates(self, sim):
+    def _candidates(self, ctx):
         """Flag and scan the candidates on the device; returns the (device) counts array."""
-        n = self._n = sim.particles.count
+        n = self._n = ctx.particles.count
         if self._flag is None or self._flag.shape[0] < n:  # scratch grows like the particle arrays
             self._flag = wp.zeros(max(n, 2 * (0 if self._flag is None else self._flag.shape[0])), dtype=wp.int32,
-                                  device=sim.device)
+                                  device=ctx.device)
             self._slot = wp.zeros_like(self._flag)
         self._counts.zero_()
         if n:
-            p = sim.particles
-            sim.launch(flag_candidates, n, [p.phase, p.active, self._flag])
+            p = ctx.particles
+            ctx.launch(flag_candidates, n, [p.phase, p.active, self._flag])
             wp.utils.array_scan(self._flag[:n], self._slot[:n], inclusive=False)
-            sim.launch(candidate_count, 1, [self._flag, self._slot, n - 1, self._counts])
+            ctx.launch(candidate_count, 1, [self._flag, self._slot, n - 1, self._counts])
         return self._counts
 
-    def _cells(self, sim, x):
-        g = sim.grid
+    def _cells(self, ctx, x):
+        g = ctx.grid
         c = np.floor((x - np.asarray(g.origin)) / g.dx).astype(np.int64)
         return np.clip(c, 0, np.array(g.cells) - 1)[:, : g.dim]
 
-    def _gathered(self, sim, snap, sub) -> list[np.ndarray]:
+    def _gathered(self, ctx, snap, sub) -> list[np.ndarray]:
         """Groups of sub-grid bubbles (one material each) whose 3^dim cell block holds >= the threshold."""
         if len(sub) == 0:
             return []
-        g = sim.grid
+        g = ctx.grid
         groups = []
         volume = snap["vol0"][sub].astype(np.float64) * snap["J"][sub]
-        cells = self._cells(sim, snap["x"][sub])
+        cells = self._cells(ctx, snap["x"][sub])
         for mat in np.unique(snap["material"][sub]):
             mine = snap["material"][sub] == mat
             field = np.zeros(g.cells[: g.dim])
@@ -465,7 +479,7 @@ class SubgridBubbleStage(Stage):
                     free &= ~members
         return groups
 
-    def _small_clusters(self, sim, snap, gas) -> list[np.ndarray]:
+    def _small_clusters(self, ctx, snap, gas) -> list[np.ndarray]:
         """Connected groups of resolved-gas cells holding less than shrink_ratio x the threshold.
 
         A group with a particle outside this step's fluid cells is in the air (a bubble that just
@@ -473,10 +487,10 @@ class SubgridBubbleStage(Stage):
         """
         if len(gas) == 0:
             return []
-        cells = self._cells(sim, snap["x"][gas])
+        cells = self._cells(ctx, snap["x"][gas])
         occupied, row = np.unique(cells, axis=0, return_inverse=True)
         row = row.reshape(-1)
-        label = connected_labels(occupied, sim.grid.dim)[row]
+        label = connected_labels(occupied, ctx.grid.dim)[row]
         volume = snap["vol0"][gas].astype(np.float64) * snap["J"][gas]
         per_label = np.bincount(label, weights=volume)
         outside = (~snap["in_fluid"][gas]).astype(np.float64)  # not in a fluid cell (the device looked)
@@ -485,48 +499,47 @@ class SubgridBubbleStage(Stage):
                                & (per_label < self.settings.shrink_ratio * self.threshold_volume))
         return [gas[label == lab] for lab in small]
 
-    def _book_rounding(self, sim, exact: float, stored: np.ndarray):
-        sim.host_state["gas_mass_rounding"] = sim.host_state["gas_mass_rounding"] + (
-            exact - stored.astype(np.float64).sum())
+    def _book_rounding(self, ctx, exact: float, stored: np.ndarray):
+        self.state.gas_mass += float(exact - stored.astype(np.float64).sum())
 
-    def _to_resolved(self, sim, snap, members):
+    def _to_resolved(self, ctx, snap, members):
         """Fill the merged volume with gas particles at the seeding spacing; returns the liquid's
         push (centre, R^dim, reach) for push_liquid."""
-        g = sim.grid
+        g = ctx.grid
         mass = snap["mass"][members].astype(np.float64)
         rest = snap["vol0"][members].astype(np.float64)
         volume = rest * snap["J"][members]
         total_mass, total_rest, total_volume = mass.sum(), rest.sum(), volume.sum()
         centre = (snap["x"][members] * volume[:, None]).sum(axis=0) / total_volume
         velocity = (snap["v"][members] * mass[:, None]).sum(axis=0) / total_mass
-        ppc = sim.scene.solver.particles_per_cell
+        ppc = ctx.scene.solver.particles_per_cell
         count = max(1, int(round(total_volume / (g.dx**3 / ppc))))
         pts = np.tile(centre, (count, 1))
         pts[:, : g.dim] += _ball_lattice(count, g.dx / ppc ** (1.0 / g.dim), g.dim)
         pts = np.clip(pts, 1e-4 * g.dx, np.asarray(g.domain_size) - 1e-4 * g.dx)
         material = np.full(count, snap["material"][members[0]], np.int32)
-        sl = sim.add_particles(pts.astype(np.float32), np.tile(velocity, (count, 1)).astype(np.float32), material,
+        sl = ctx.add_particles(pts.astype(np.float32), np.tile(velocity, (count, 1)).astype(np.float32), material,
                                np.full(count, total_volume / count))
         each = np.full(count, total_mass / count, np.float32)
-        sim.particles.mass[sl].assign(each)
-        sim.particles.vol0[sl].assign(np.full(count, total_rest / count, np.float32))
-        sim.particles.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
-        self._book_rounding(sim, total_mass, each)
+        ctx.particles.mass[sl].assign(each)
+        ctx.particles.vol0[sl].assign(np.full(count, total_rest / count, np.float32))
+        ctx.particles.J[sl].assign(np.full(count, total_volume / total_rest, np.float32))
+        self._book_rounding(ctx, total_mass, each)
         # Volume-preserving push of the liquid out of the new bubble (ball radius R in 3D, disk in 2D).
         radius = (sphere_radius(total_volume) if g.dim == 3 else math.sqrt(total_volume / (math.pi * g.dx)))
         return centre, radius**g.dim, PUSH_REACH * radius
 
-    def _to_subgrid(self, sim, snap, members):
+    def _to_subgrid(self, ctx, snap, members):
         mass = snap["mass"][members].astype(np.float64)
         rest = snap["vol0"][members].astype(np.float64)
         volume = rest * snap["J"][members]
         total_mass, total_rest, total_volume = mass.sum(), rest.sum(), volume.sum()
         centre = (snap["x"][members] * volume[:, None]).sum(axis=0) / total_volume
         velocity = (snap["v"][members] * mass[:, None]).sum(axis=0) / total_mass
-        sl = add_bubbles(sim, centre[None], sphere_radius([total_volume]), velocity[None],
+        sl = add_bubbles(ctx, centre[None], sphere_radius([total_volume]), velocity[None],
                          int(snap["material"][members[0]]))
         stored = np.array([total_mass], np.float32)
-        sim.particles.mass[sl].assign(stored)
-        sim.particles.vol0[sl].assign(np.array([total_rest], np.float32))
-        sim.particles.J[sl].assign(np.array([total_volume / total_rest], np.float32))
-        self._book_rounding(sim, total_mass, stored)
+        ctx.particles.mass[sl].assign(stored)
+        ctx.particles.vol0[sl].assign(np.array([total_rest], np.float32))
+        ctx.particles.J[sl].assign(np.array([total_volume / total_rest], np.float32))
+        self._book_rounding(ctx, total_mass, stored)

@@ -2,8 +2,8 @@
 killed run and reaches what an uninterrupted run would (bit for bit on the CPU device).
 
 Only what a step reads from the previous one is saved: every per-particle array (effects add
-theirs), the pressure (the solver's warm start), the vented gas, the effects' host state (emitter
-progress), the clock and the last maximum speed (it sets the next time step). Grid arrays are
+theirs), the pressure (the solver's warm start), the vented gas, the host values of the core and
+of each stage (`Simulation.state_arrays`: the next id, emitter progress, ...), the clock and the last maximum speed (it sets the next time step). Grid arrays are
 rebuilt by every step and are not saved.
 
 Each checkpoint also records the scene that wrote it (every setting, the output's included, but the
@@ -76,7 +76,7 @@ def save_checkpoint(sim, path) -> None:
             particles = sim.particles
             np.savez(f, **{f"particle_{name}": particles.numpy(name) for name in particles.fields},
                      **{name: getattr(sim.fields, name).numpy() for name in GRID_CHECKPOINT},
-                     **{f"host_{name}": value for name, value in sim.host_state.items()},
+                     **{f"host_{name}": value for name, value in sim.state_arrays().items()},
                      time=sim.time, frame=sim.frame, max_speed=sim.max_particle_speed, steps=sim.stats.steps,
                      scene=record, scene_sha256=hashlib.sha256(record.encode()).hexdigest())
             f.flush()
@@ -215,9 +215,8 @@ def _restore(sim, data) -> None:
             getattr(particles, name)[n:].zero_()
     for name in GRID_CHECKPOINT:
         getattr(sim.fields, name).assign(data[name])
-    for name in sim.host_state:
-        if f"host_{name}" in data.files:  # else (an older checkpoint) the fresh default
-            sim.host_state[name] = data[f"host_{name}"].copy()
+    # The core's and the stages' host values by name (an older checkpoint's missing ones keep their fresh value).
+    sim.load_state({name[len("host_"):]: data[name] for name in data.files if name.startswith("host_")})
     sim.time, sim.frame = float(data["time"]), int(data["frame"])
     sim.max_particle_speed = float(data["max_speed"])
     sim.stats.steps = int(data["steps"])

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checkpoint import checkpoint_path, load_checkpoint, resumable_checkpoint, save_checkpoint
-from ..core.grid import PHASE_GAS, sphere_radius
 from ..core.simulation import Simulation, SimulationError
 from .devices import check_device, check_memory
 from .fill import check_domain_fill
@@ -201,13 +200,24 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint, builder=None) -> in
     surface = _surface(sim, builder)
     with sim.timer("output"):
         p = sim.particles_numpy()
-        radii = None  # without foam or sub-grid bubbles every particle has the output radius
-        if sim.stage("foam") or sim.stage("subgrid_bubbles"):  # those are real bubbles: the radius of their own volume
-            radii = np.where(p["phase"] > PHASE_GAS, sphere_radius(p["volume"]), writer.radius)
-        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"], radii,
+        writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"],
+                           output_radii(sim, p, writer.radius),
                            surface=surface)
         save_checkpoint(sim, checkpoint)
     return sim.frame
+
+
+def output_radii(sim: Simulation, p: dict, radius: float):
+    """Each particle's radius in the frame (p: its read-out), where a stage owns some particles' size
+    (real bubbles: the radius of their own volume) and `radius` for the rest; None when no stage
+    does (every particle has the output radius)."""
+    radii = None
+    for stage in sim.stages:
+        own = stage.output_radii(p)
+        if own is not None:
+            radii = np.full(len(p["phase"]), radius) if radii is None else radii
+            radii[own[0]] = own[1]
+    return radii
 
 
 def _surface(sim: Simulation, builder):
@@ -267,8 +277,7 @@ def summary(result: RunResult) -> str:
     if sim.has_gas:
         b = sim.gas_budget()
         share = lambda key: 100 * b[key] / b["total"] if b["total"] > 0 else 0.0  # noqa: E731
-        held = "".join(f", {share(key):.1f}% {what}" for key, what, on in (
-            ("foam", "in foam", "foam"), ("subgrid", "in sub-grid bubbles", "subgrid_bubbles")) if sim.stage(on))
+        held = "".join(f", {share(s.gas_held[0]):.1f}% {s.gas_held[1]}" for s in sim.stages if s.gas_held)
         gone = f", {share('left'):.1f}% out through open walls" if sim.open_walls else ""
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{gone}{held}, "
                      f"{b['volume'] * 1e6:.3g} cm^3 resolved left in the liquid")
@@ -277,10 +286,8 @@ def summary(result: RunResult) -> str:
         out = 100 * liquid["left"] / liquid["added"] if liquid["added"] > 0 else 0.0
         lines.append(f"  open walls: {out:.1f}% of the liquid's mass left through them ({liquid['left']:.4g} of "
                      f"{liquid['added']:.4g} kg seeded and emitted)")
-    for i, (owed, delivered) in enumerate(sim.host_state.get("inflow_volume", ())):
-        if delivered < owed * (1.0 - 1e-9):  # effects/emitters.py's _deliver refused the crowded cells
-            lines.append(f"  [emitters.{i}] delivered {100 * delivered / owed:.0f}% of its stream: its nozzle's cells "
-                         f"were full of liquid (submerged, or the stream blocked)")
+    for stage in sim.stages:
+        lines += stage.summary_lines(sim.ctx)
     lines.append(_voids_line(sim))
     if "surface" in timer.seconds:  # built once per frame, not per step
         lines.append(f"  surface mesh: {1e3 * timer.seconds['surface'] / result.frames_written:.0f} ms per frame")

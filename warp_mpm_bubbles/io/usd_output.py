@@ -60,8 +60,8 @@ def _fsync(path: Path, flags: int) -> None:
 
 def _atomic_export(layer: Sdf.Layer, path: Path, tmp_dir: Path | None = None) -> None:
     """Export to a temp file, fsync, rename: readers see the old or the new file, never half.
-    The temp name is unique to this process (a shared one let two runs rename each other's file:
-    the FileNotFoundError of issue #14); a failed write removes it and raises OSError naming `path`."""
+    The temp name is unique to this process (with a shared one, two runs writing the same
+    file would rename each other's temp file away); a failed write removes it and raises OSError naming `path`."""
     tmp = temp_path((tmp_dir or path.parent) / path.name)  # same suffix: it picks the file format
     try:
         try:

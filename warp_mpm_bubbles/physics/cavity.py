@@ -208,18 +208,18 @@ def cavity_gas_J(
 class Cavities:
     """The gas stage's cavity part: its arrays, and one call per hook of the gas stage."""
 
-    def __init__(self, sim):
-        f = sim.fields
+    def __init__(self, ctx):
+        f = ctx.fields
         f.cavity, f.cavity_count, f.cavity_room = f.cells(wp.int32), f.cells(wp.int32), f.cells()
-        sim.particles.add_field("cavity_gas", wp.int32)  # checkpointed, sorted, compacted with the rest
+        ctx.particles.add_field("cavity_gas", wp.int32)  # checkpointed, sorted, compacted with the rest
         self.active = True  # whether a cavity may exist this step (then the kernels below run)
         self._marked = False  # whether f.cavity may hold a mark from an earlier step
 
-    def after_p2g(self, sim):
+    def after_p2g(self, ctx):
         """First of the step: no gas was a cavity's, nor under CAVITY_ENTER, at the last step's end
-        (the gas stage's read-back, host_state) means no cell can be one now: all is skipped."""
-        f, p = sim.fields, sim.particles
-        self.active = sim.host_state["gas_cavity"][0] > 0.0
+        (the gas stage's read-back, its state) means no cell can be one now: all is skipped."""
+        f, p = ctx.fields, ctx.particles
+        self.active = ctx.stage("gas").state.cavity > 0.0
         if not self.active:
             if self._marked:
                 f.cavity.zero_()
@@ -227,31 +227,31 @@ class Cavities:
             return
         self._marked = True
         f.cavity_count.zero_()
-        sim.launch(count_cavity_gas, p.count, [p.x, p.phase, p.active, p.cavity_gas, sim.geometry, f.cavity_count])
+        ctx.launch(count_cavity_gas, p.count, [p.x, p.phase, p.active, p.cavity_gas, ctx.geometry, f.cavity_count])
 
-    def on_cells(self, sim):
+    def on_cells(self, ctx):
         """After classify_phases: which cells are a cavity's."""
         if not self.active:
             return
-        g, f = sim.grid, sim.fields
-        ambient = sim.scene.domain.ambient_pressure
-        sim.launch(mark_cavities, g.cells, [f.types, f.phase_cells, f.gas_volume, f.gas_pv, f.cavity_count, ambient,
+        g, f = ctx.grid, ctx.fields
+        ambient = ctx.scene.domain.ambient_pressure
+        ctx.launch(mark_cavities, g.cells, [f.types, f.phase_cells, f.gas_volume, f.gas_pv, f.cavity_count, ambient,
                                             CAVITY_ENTER * ambient, CAVITY_EXIT * ambient, g.dim, f.gas_kv, f.cavity])
 
-    def before_extend(self, sim):
+    def before_extend(self, ctx):
         """Before the gas's and the liquid's fields are extended (and copied: both get it)."""
         if not self.active:
             return
-        f = sim.fields
-        for a in sim.grid.axes:
-            sim.launch(release_cavity_faces, sim.grid.face_shape(a), [f.types, f.cavity, a, f.vel[a], f.valid[a]])
+        f = ctx.fields
+        for a in ctx.grid.axes:
+            ctx.launch(release_cavity_faces, ctx.grid.face_shape(a), [f.types, f.cavity, a, f.vel[a], f.valid[a]])
 
-    def update_J(self, sim, dt: float):
+    def update_J(self, ctx, dt: float):
         """After update_gas_J (f.gas_rate holds the cells' volume change)."""
         if not self.active:
             return
-        g, f, p = sim.grid, sim.fields, sim.particles
-        sim.launch(cavity_room, g.cells, [f.cavity, f.liq_volume, f.gas_volume, f.gas_mass, f.gas_rate, g.dx**3, dt,
+        g, f, p = ctx.grid, ctx.fields, ctx.particles
+        ctx.launch(cavity_room, g.cells, [f.cavity, f.liq_volume, f.gas_volume, f.gas_mass, f.gas_rate, g.dx**3, dt,
                                           f.cavity_room])
-        sim.launch(cavity_gas_J, p.count, [p.x, p.phase, p.active, p.mass, p.vol0, f.cavity_room, sim.geometry, p.J,
+        ctx.launch(cavity_gas_J, p.count, [p.x, p.phase, p.active, p.mass, p.vol0, f.cavity_room, ctx.geometry, p.J,
                                            p.cavity_gas])

@@ -18,8 +18,8 @@ limit, "gas_expansion", keeps a violent expansion or collapse resolved (dt_limit
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-import numpy as np
 import warp as wp
 
 from ..core import grid_kernels as gk
@@ -27,6 +27,7 @@ from ..core import kernel_args
 from ..core.geometry import GridGeometry
 from ..core.grid import EMPTY, FLUID, INTERFACE_SHARP, PHASE_GAS, PHASE_LIQUID
 from ..core.cells import cell_divergence, cell_of, cell_type_at, is_phase_cell, unit
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.gas_law import GAS_ADIABATIC, gas_pressure
 from ..core.kernel_args import Particles
@@ -228,7 +229,7 @@ def gas_cell_expansion(
     """out[slot]: the largest |div u - d| (1/s, the gas's relative volume change rate) over gas cells,
     d the divergence the volume correction asked of the cell (target_div), which is not the gas's
     (gas_volume_rate leaves it out of J too): an incompressible gas's cells move only by d, and
-    counted as expansion it set 515 of 520 steps of a rising bubble (issue #12's 3D tank).
+    counted as expansion it would set the time step of a rising bubble at nearly every step.
     Cavities' cells are not counted (physics/cavity.py: a near vacuum's volume is the room it is left)."""
     i, j, k = wp.tid()
     i, j, k = i + lo[0], j + lo[1], k + lo[2]
@@ -250,63 +251,71 @@ def pressure_step(cfl: float, dx: float, gauge: float, rho: float, hydrostatic: 
 # ------------------------------------------------------------------------------------ the stage
 
 
+@dataclass
+class GasState(HostState):
+    """The last step's measures for dt_limit, from the step's one read-back (checkpointed: a resumed
+    run steps alike)."""
+
+    gauge: float = saved("gas_gauge", math.nan)  # the largest |gauge pressure|, Pa (NaN: not measured yet)
+    expansion_rate: float = saved("gas_expansion_rate", 0.0)  # the fastest relative volume change, 1/s
+    cavity: float = saved("gas_cavity", 1.0)  # 1: a cavity may exist this step (physics/cavity.py)
+
+
 class GasStage(Stage):
     name = "gas"
     timer = "vent"  # its after-g2p time: the rest is timed with p2g, grid, extend and g2p
     limit = "gas_expansion"
-    grid_box = True  # its grid kernels cover sim.region; outside it the gas arrays hold no gas
+    grid_box = True  # its grid kernels cover ctx.region; outside it the gas arrays hold no gas
+    # Not graph-safe: its hooks choose kernels on the host from the last read-back (a cavity may
+    # exist, the gauge past SPREAD_GATE) and launch on the gas's own box, which no graph key holds.
+    graph_safe = False
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        f, solver = sim.fields, sim.scene.solver
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings)
+        f, solver = ctx.fields, ctx.scene.solver
         f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv = (f.cells() for _ in range(4))
         f.gas_count = f.cells(wp.int32)
         f.target_div, f.gas_rate = f.cells(), f.cells()
-        up_axis = sim.up[0]
-        column = list(sim.grid.cells)
+        up_axis = ctx.up[0]
+        column = list(ctx.grid.cells)
         if up_axis >= 0:
             column[up_axis] = 1
-        f.ceiling = wp.zeros(tuple(column), dtype=wp.int32, device=sim.device)
-        self.sharp = sim.interface == INTERFACE_SHARP
-        self.cavities = Cavities(sim)  # near-vacuum gas: a pressure boundary (physics/cavity.py)
+        f.ceiling = wp.zeros(tuple(column), dtype=wp.int32, device=ctx.device)
+        self.sharp = ctx.interface == INTERFACE_SHARP
+        self.cavities = Cavities(ctx)  # near-vacuum gas: a pressure boundary (physics/cavity.py)
         if self.sharp and solver.liquid_velocity == "own":
             f.gas_vel, f.gas_valid = f.faces(), f.faces(wp.int32)
         # Foam takes the gas that reaches open air (effects/foam.py): then nothing vents here.
-        self.vents = "foam" not in sim.effects
+        self.vents = "foam" not in ctx.effects
         self._limit = (None, math.inf)  # dt_limit is asked more than once per step
-        # The last step's measures for dt_limit, from the step's one read-back (checkpointed: a
-        # resumed run steps alike): the largest |gauge pressure| (NaN: not measured yet), and the
-        # fastest relative volume change (1/s).
-        sim.host_state["gas_gauge"] = np.full(1, np.nan)
-        sim.host_state["gas_expansion_rate"] = np.zeros(1)
-        sim.host_state["gas_cavity"] = np.ones(1)  # 1: a cavity may exist this step (physics/cavity.py)
-        sim.report_writers.append(self._write_report)
-        sim.report_readers.append(self._read_report)
-        mats = list(sim.scene.materials.values())
+        self.state = GasState()
+        ctx.report_writers.append(self._write_report)
+        ctx.report_readers.append(self._read_report)
+        mats = list(ctx.scene.materials.values())
         liquids = [m.density for m in mats if m.kind == "liquid"] or [m.density for m in mats if m.is_gas]
         self.rho = min(liquids)  # the lightest fluid the gas pushes: the fastest response
-        g = math.sqrt(sum(a * a for a in sim.gravity))
-        height = sim.grid.domain_size[sim.up[0]] if sim.up[0] >= 0 else 0.0
+        g = math.sqrt(sum(a * a for a in ctx.gravity))
+        height = ctx.grid.domain_size[ctx.up[0]] if ctx.up[0] >= 0 else 0.0
         self.hydrostatic = max(liquids) * g * height  # no head in the domain is deeper
 
-    def dt_limit(self, sim) -> float:
+    def dt_limit(self, ctx) -> float:
         """"gas_expansion": the smaller of (a) the step at which the gas's pressure imbalance moves
         the liquid cfl cells (pressure_step: it sees a violent start before anything moves) and
         (b) the step in which the fastest-changing gas cell changes volume by GAS_EXPANSION_SHARE,
         at the last step's rate. Without it a gas seeded at 10 atm started with an 8 ms step, 60
         times its expansion time (benchmarks/rate_invariance.py expansion)."""
-        key = (sim.stats.steps, sim.time, sim.particles.count)
+        key = (ctx.stats.steps, ctx.time, ctx.particles.count)
         if self._limit[0] == key:
             return self._limit[1]
-        gauge = float(sim.host_state["gas_gauge"][0])
+        gauge = self.state.gauge
         if math.isnan(gauge):  # the first step (or an older checkpoint): measured once here
-            first = sim.read_host(self._measure_gauge(sim, wp.zeros(CAVITY_SLOT + 1, dtype=float, device=sim.device)))
+            first = ctx.read_host(self._measure_gauge(ctx, wp.zeros(CAVITY_SLOT + 1, dtype=float, device=ctx.device)))
             gauge = float(first[GAUGE_SLOT])
-            sim.host_state["gas_cavity"][0] = float(first[CAVITY_SLOT])
-        cfl, dx, ambient = sim.scene.solver.cfl, sim.grid.dx, sim.scene.domain.ambient_pressure
+            self.state.cavity = float(first[CAVITY_SLOT])
+        cfl, dx, ambient = ctx.scene.solver.cfl, ctx.grid.dx, ctx.scene.domain.ambient_pressure
         # (an infinite gauge is gas compressed to J = 0: a diverged state, left to p2g's check)
         limit = pressure_step(cfl, dx, gauge, self.rho, self.hydrostatic) if math.isfinite(gauge) else math.inf
-        rate = float(sim.host_state["gas_expansion_rate"][0])  # checkpointed: a resumed run steps alike
+        rate = self.state.expansion_rate  # checkpointed: a resumed run steps alike
         if 0.0 < rate < math.inf:  # an overflowed rate is a diverged step: p2g's check names it
             # Floor: a very compressible gas (near vacuum) changes volume at a rate ~ 1/dt whatever
             # dt is, which would shrink the step geometrically to 0: the floor is a tenth of the step
@@ -316,24 +325,24 @@ class GasStage(Stage):
         self._limit = (key, limit)
         return limit
 
-    def _measure_gauge(self, sim, out):
-        p = sim.particles
-        ambient = sim.scene.domain.ambient_pressure
-        sim.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma, p.cavity_gas, ambient,
+    def _measure_gauge(self, ctx, out):
+        p = ctx.particles
+        ambient = ctx.scene.domain.ambient_pressure
+        ctx.launch(gas_step_measures, p.count, [p.phase, p.active, p.J, p.gas_law, p.gas_gamma, p.cavity_gas, ambient,
                                                  CAVITY_ENTER * ambient, out])
         return out
 
-    def _write_report(self, sim):
+    def _write_report(self, ctx):
         # The next step's limit from this step's end state, carried by the step's one read-back.
-        g, f, r = sim.grid, sim.fields, sim.region
-        self._measure_gauge(sim, f.max_speed)
-        sim.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.cavity, f.target_div,
+        g, f, r = ctx.grid, ctx.fields, ctx.region
+        self._measure_gauge(ctx, f.max_speed)
+        ctx.launch(gas_cell_expansion, r.cells, [f.types, f.phase_cells, *(f.gas_vel or f.vel), f.cavity, f.target_div,
                                                  g.dx, g.dim, RATE_SLOT, f.max_speed, r.lo])
 
-    def _read_report(self, sim, report):
-        sim.host_state["gas_gauge"][0] = float(report[GAUGE_SLOT])
-        sim.host_state["gas_expansion_rate"][0] = float(report[RATE_SLOT])
-        sim.host_state["gas_cavity"][0] = float(report[CAVITY_SLOT])
+    def _read_report(self, ctx, report):
+        self.state.gauge = float(report[GAUGE_SLOT])
+        self.state.expansion_rate = float(report[RATE_SLOT])
+        self.state.cavity = float(report[CAVITY_SLOT])
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -341,60 +350,60 @@ class GasStage(Stage):
             hooks.discard("after_g2p")
         return hooks
 
-    def after_p2g(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
+    def after_p2g(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
         for arr in (f.gas_mass, f.gas_volume, f.gas_pv, f.gas_kv, f.gas_count):
             arr.zero_()
-        sim.launch_splat(p2g_gas, [sim.scene.domain.ambient_pressure, sim.geometry, kernel_args.particle_arrays(p),
+        ctx.launch_splat(p2g_gas, [ctx.scene.domain.ambient_pressure, ctx.geometry, kernel_args.particle_arrays(p),
                                    kernel_args.splat(f), f.gas_count])
-        self.cavities.after_p2g(sim)
+        self.cavities.after_p2g(ctx)
 
-    def on_cells(self, sim, dt: float):
-        f, r = sim.fields, sim.region
-        sim.launch(gk.classify_phases, r.cells,
-                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, sim.interface, f.phase_cells, r.lo])
-        self.cavities.on_cells(sim)
-        up_axis, up_sign = sim.up
+    def on_cells(self, ctx, dt: float):
+        f, r = ctx.fields, ctx.region
+        ctx.launch(gk.classify_phases, r.cells,
+                   [f.types, f.gas_count, f.liq_volume, f.gas_volume, ctx.interface, f.phase_cells, r.lo])
+        self.cavities.on_cells(ctx)
+        up_axis, up_sign = ctx.up
         if up_axis >= 0:  # where the open air starts, for venting, foam and sub-grid bubbles
             f.ceiling.fill_(-1)  # (no liquid cell lies outside the box)
-            sim.launch(liquid_ceiling, r.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling, r.lo])
+            ctx.launch(liquid_ceiling, r.cells, [f.types, f.phase_cells, up_axis, up_sign, f.ceiling, r.lo])
 
-    def before_extend(self, sim, dt: float):
-        f, r = sim.fields, sim.region
-        self.cavities.before_extend(sim)
+    def before_extend(self, ctx, dt: float):
+        f, r = ctx.fields, ctx.region
+        self.cavities.before_extend(ctx)
         if f.gas_vel is None:
             return
         # The gas reads (a copy of) the shared projected field; the liquid keeps only its own faces,
         # and the core extends that across the interface. (Outside the box both hold the empty state.)
-        for a in sim.grid.axes:
-            sim.launch_box(keep_phase_faces, r.lo, r.faces(a),
+        for a in ctx.grid.axes:
+            ctx.launch_box(keep_phase_faces, r.lo, r.faces(a),
                            [f.types, f.phase_cells, a, PHASE_LIQUID, f.vel[a], f.valid[a], f.gas_vel[a], f.gas_valid[a]])
         # Only gas particles (g2p) and cells holding gas (their volume change, the step limit) read
         # the gas's field, all within a cell of a gas particle: it is extended on the gas's box
         # (active_box.ActiveRegion.gas_box), whose margin covers what they read; outside it the field
         # keeps the projected values, which nothing reads.
-        sim.extend(f.gas_vel, f.gas_valid, r.gas_box(sim.particles))
+        ctx.extend(f.gas_vel, f.gas_valid, r.gas_box(ctx.particles))
 
-    def before_g2p(self, sim, dt: float):
+    def before_g2p(self, ctx, dt: float):
         if not self.sharp:
             return
-        g, f, p = sim.grid, sim.fields, sim.particles
+        g, f, p = ctx.grid, ctx.fields, ctx.particles
         # The gas takes its cells' volume change, before g2p moves it (the weights p2g_gas used).
         # The baseline treats a cell with any gas as all gas, so there the published rule stays:
         # J follows the interpolated divergence (in g2p).
-        box = sim.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
-        sim.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types,
+        box = ctx.region.gas_box(p)  # update_gas_J reads the rate within a cell of its gas particles
+        ctx.launch(gas_volume_rate, box.cells, [box.lo, g.dx, g.dim, f.types,
                                                 kernel_args.face_field(f.gas_vel or f.vel), f.gas_volume, f.target_div,
                                                 f.gas_rate])
-        sim.launch_particles(update_gas_J, [dt, sim.geometry, f.gas_rate, kernel_args.particle_arrays(p)])
-        self.cavities.update_J(sim, dt)
-        ambient = sim.scene.domain.ambient_pressure
-        if self.cavities.active or sim.host_state["gas_gauge"][0] > SPREAD_GATE * ambient:
-            sim.launch(limit_gas_pressure_spread, p.count,
-                       [ambient, MAX_PRESSURE_SPREAD, sim.geometry, f.gas_volume, f.gas_pv, kernel_args.particle_arrays(p)])
+        ctx.launch_particles(update_gas_J, [dt, ctx.geometry, f.gas_rate, kernel_args.particle_arrays(p)])
+        self.cavities.update_J(ctx, dt)
+        ambient = ctx.scene.domain.ambient_pressure
+        if self.cavities.active or self.state.gauge > SPREAD_GATE * ambient:
+            ctx.launch(limit_gas_pressure_spread, p.count,
+                       [ambient, MAX_PRESSURE_SPREAD, ctx.geometry, f.gas_volume, f.gas_pv, kernel_args.particle_arrays(p)])
 
-    def after_g2p(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
-        sim.launch(vent_exposed_gas, p.count,
-                   [sim.geometry, f.types, f.ceiling, kernel_args.particle_arrays(p), f.vented_mass])
+    def after_g2p(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
+        ctx.launch(vent_exposed_gas, p.count,
+                   [ctx.geometry, f.types, f.ceiling, kernel_args.particle_arrays(p), f.vented_mass])
 

@@ -169,7 +169,7 @@ def film_target(dt: float, geo: GridGeometry, films: Films, xp: wp.vec3):
     faster), at most a quarter cell a step. Only gas on the liquid's side of the interface, where the
     smoothed liquid level set the curvature reads is positive, is a film: gas on the bubble's side in
     a cell the interface crosses is the resolved bubble (retracted, it piled into the bubble and left
-    the interface's cells under-filled, 0.92, with holes: issue #12)."""
+    the interface's cells under-filled, with holes)."""
     types = films.cells.types
     phase_cells = films.cells.phase
     c = cell_of(xp, geo.origin, geo.dx)
@@ -258,34 +258,35 @@ class TensionStage(Stage):
     name = "surface_tension"
     timer = "tension"
     limit = "capillary"
-    grid_box = True  # the force covers sim.region: outside it psi = -1, kappa = 0 and no face is active
+    grid_box = True  # the force covers ctx.region: outside it psi = -1, kappa = 0 and no face is active
+    graph_safe = True
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings)
-        g, materials = sim.grid, sim.scene.materials.values()
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings)
+        g, materials = ctx.grid, ctx.scene.materials.values()
         liquids = [m for m in materials if m.kind == "liquid"]
         self.sigma = max(m.surface_tension for m in liquids)  # N/m; the stage runs only if > 0
         self.rho_liquid = max(m.density for m in liquids)
         self.rho_gas = max((m.density for m in materials if m.is_gas), default=0.0)
-        self.level, self.level_tmp = sim.fields.cells(), sim.fields.cells()  # psi and its smoothing's spare
-        self.fraction = sim.fields.cells()  # height_fraction's psi, which the columns sum
-        self.heights = sim.fields.cells(wp.vec3)  # column_heights: per cell, one column per axis
-        self.from_heights = sim.fields.cells()  # 1 where kappa came from heights, 0 where from div(n)
-        self.kappa, self.kappa_tmp = sim.fields.cells(), sim.fields.cells()  # kappa and its averaging's spare
+        self.level, self.level_tmp = ctx.fields.cells(), ctx.fields.cells()  # psi and its smoothing's spare
+        self.fraction = ctx.fields.cells()  # height_fraction's psi, which the columns sum
+        self.heights = ctx.fields.cells(wp.vec3)  # column_heights: per cell, one column per axis
+        self.from_heights = ctx.fields.cells()  # 1 where kappa came from heights, 0 where from div(n)
+        self.kappa, self.kappa_tmp = ctx.fields.cells(), ctx.fields.cells()  # kappa and its averaging's spare
         self.curvature = self.kappa  # force() names the buffer its averaging ends in
         self.smoothed = self.level  # force() names the buffer its smoothing ends in
         # Gas films thinner than a cell feel no Laplace jump (it acts on cell faces); with the sharp
         # interface they retract into their bubble, at the Taylor-Culick speed of a one-cell film.
-        self.retract_films = (sim.has_gas and sim.interface == INTERFACE_SHARP
-                              and sim.scene.solver.gas_films == "retract")
+        self.retract_films = (ctx.has_gas and ctx.interface == INTERFACE_SHARP
+                              and ctx.scene.solver.gas_films == "retract")
         self.film_speed = math.sqrt(2.0 * self.sigma / (self.rho_liquid * g.dx)) if self.retract_films else 0.0
         if self.retract_films:  # particles per cell now, film particles leaving each cell, the first of them
-            self.count, self.leaving, self.first = (sim.fields.cells(wp.int32) for _ in range(3))
+            self.count, self.leaving, self.first = (ctx.fields.cells(wp.int32) for _ in range(3))
         # A cell's last film particle stays (no hole) only with incompressible gas: with air, whose
         # gas expands into a gap by itself, keeping films back broke a rising bubble up (the largest
         # kept 31% of the gas after five diameters instead of 67%; tests/test_gas.py).
         self.hold_films = self.retract_films and not any(
-            m.is_gas and m.eos != "incompressible" for m in sim.scene.materials.values())
+            m.is_gas and m.eos != "incompressible" for m in ctx.scene.materials.values())
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -293,42 +294,42 @@ class TensionStage(Stage):
             hooks.discard("after_g2p")
         return hooks
 
-    def dt_limit(self, sim) -> float:
+    def dt_limit(self, ctx) -> float:
         # Capillary waves (Brackbill et al. 1992): dt <= sqrt((rho_l + rho_g) dx^3 / (4 pi sigma)).
-        return math.sqrt((self.rho_liquid + self.rho_gas) * sim.grid.dx**3 / (4.0 * math.pi * self.sigma))
+        return math.sqrt((self.rho_liquid + self.rho_gas) * ctx.grid.dx**3 / (4.0 * math.pi * self.sigma))
 
-    def force(self, sim, dt: float):
-        g, f, r = sim.grid, sim.fields, sim.region
+    def force(self, ctx, dt: float):
+        g, f, r = ctx.grid, ctx.fields, ctx.region
         level, smoothed = self.level, self.level_tmp
         cells = r.cell_lines
-        sim.launch_lines(liquid_level_set, cells, [1.0 / g.dx**3, f.liq_volume, level])
+        ctx.launch_lines(liquid_level_set, cells, [1.0 / g.dx**3, f.liq_volume, level])
         for _ in range(LEVEL_SET_SMOOTHING):
-            sim.launch_lines(smooth_level_set, cells, [g.dim, f.types, level, smoothed])
+            ctx.launch_lines(smooth_level_set, cells, [g.dim, f.types, level, smoothed])
             level, smoothed = smoothed, level
-        gas_volume = f.gas_volume if sim.has_gas else f.liq_volume  # (not read without gas)
-        sim.launch_lines(height_fraction, cells, [1.0 / g.dx**3, g.dim, int(sim.has_gas), f.liq_volume, gas_volume,
+        gas_volume = f.gas_volume if ctx.has_gas else f.liq_volume  # (not read without gas)
+        ctx.launch_lines(height_fraction, cells, [1.0 / g.dx**3, g.dim, int(ctx.has_gas), f.liq_volume, gas_volume,
                                                   f.types, self.fraction])
         lo, hi = r.box
         # The box grown: the curvature reads the columns beside its best-centred one, which is up to
         # CENTRING_SHIFT cells off along the axis.
         start = [max(a - CENTRING_SHIFT, 0) for a in lo]
         end = [min(b + CENTRING_SHIFT, n) for b, n in zip(hi, g.cells)]
-        sim.launch_lines(column_heights, make_lines(start, end, g.dim, sim.device),
+        ctx.launch_lines(column_heights, make_lines(start, end, g.dim, ctx.device),
                          [g.dim, r.lo, wp.vec3i(*hi), self.fraction, f.types, self.heights])
         kappa, spare = self.kappa, self.kappa_tmp
-        sim.launch_lines(surface_curvature, cells, [g.dx, g.dim, f.types, level, self.heights, kappa,
+        ctx.launch_lines(surface_curvature, cells, [g.dx, g.dim, f.types, level, self.heights, kappa,
                                                     self.from_heights])
         for _ in range(CURVATURE_AVERAGING):
-            sim.launch_lines(average_curvature, cells, [g.dim, kappa, self.from_heights, spare])
+            ctx.launch_lines(average_curvature, cells, [g.dim, kappa, self.from_heights, spare])
             kappa, spare = spare, kappa
         self.curvature = kappa
         self.smoothed = level  # the films' side of the interface (after_g2p)
         for a in g.axes:
-            sim.launch_lines(apply_surface_tension, r.face_lines[a],
+            ctx.launch_lines(apply_surface_tension, r.face_lines[a],
                              [self.sigma, a, g.dx, dt, kernel_args.cell_phases(f), level, kappa, f.inv_rho[a], f.vel[a]])
 
-    def after_g2p(self, sim, dt: float):
-        f, p = sim.fields, sim.particles
+    def after_g2p(self, ctx, dt: float):
+        f, p = ctx.fields, ctx.particles
         self.first.fill_(2**31 - 1)  # no particle is a cell's first: without holding, none is held back
         films = Films()
         films.cells, films.gas_volume = kernel_args.cell_phases(f), f.gas_volume
@@ -337,7 +338,7 @@ class TensionStage(Stage):
         if self.hold_films:  # the particles per cell, and how many would leave each: the last one stays
             self.count.zero_()
             self.leaving.zero_()
-            sim.launch(count_grid_particles, p.count, [sim.geometry, particles, self.count])
-            sim.launch(film_departures, p.count, [dt, sim.geometry, films, particles, self.leaving, self.first])
-        sim.launch_particles(retract_gas_films, [dt, sim.geometry, films, self.count, self.leaving, self.first,
+            ctx.launch(count_grid_particles, p.count, [ctx.geometry, particles, self.count])
+            ctx.launch(film_departures, p.count, [dt, ctx.geometry, films, particles, self.leaving, self.first])
+        ctx.launch_particles(retract_gas_films, [dt, ctx.geometry, films, self.count, self.leaving, self.first,
                                                  particles])

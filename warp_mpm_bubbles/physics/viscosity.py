@@ -11,59 +11,65 @@ otherwise. mu of each phase is the largest dynamic viscosity among its materials
 """
 
 import math
+from dataclasses import dataclass
 
-import numpy as np
-
+from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..scene.effects import Viscosity
 from .viscous_solve import ViscousSolver
+
+
+@dataclass
+class ViscousRate(HostState):
+    rate: float = saved("viscous_rate", 0.0)  # 1/s: the last grid's explicit rate
 
 
 class ViscosityStage(Stage):
     name = "viscosity"
     limit = "viscous"
     Settings = Viscosity
+    graph_safe = False  # its force reads the grid's explicit rate on the host (explicit or implicit)
 
-    def __init__(self, sim, settings=None):
-        super().__init__(sim, settings or Viscosity())
-        materials = list(sim.scene.materials.values())
+    def __init__(self, ctx, settings=None):
+        super().__init__(ctx, settings or Viscosity())
+        materials = list(ctx.scene.materials.values())
         mu = lambda ms: max((m.viscosity for m in ms), default=0.0)  # noqa: E731
         self.mu_liquid = mu([m for m in materials if m.kind == "liquid"])
         self.mu_gas = mu([m for m in materials if m.is_gas])
         # Before the first step's grid exists: each material's own rate, 8 dim nu/dx^2 (4 dim for
         # the Laplacian part, as much again for grad div), so the limit is dx^2 / (4 dim nu).
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
-        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: host_state.
-        sim.host_state["viscous_rate"] = np.array([8 * sim.grid.dim * nu / sim.grid.dx**2])
-        self.solver = ViscousSolver(sim.grid, sim.device, sim.launch)
+        # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
+        self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
+        self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False
 
-    def explicit_limit(self, sim) -> float:
+    def explicit_limit(self, ctx) -> float:
         """Forward Euler's largest stable step on the last grid seen (s)."""
-        rate = float(sim.host_state["viscous_rate"][0])
+        rate = self.state.rate
         return 2.0 / rate if rate > 0.0 else math.inf
 
-    def dt_limit(self, sim) -> float:
+    def dt_limit(self, ctx) -> float:
         mode = self.settings.solver
         if mode == "implicit" or self._probing:
             return math.inf
-        limit = self.explicit_limit(sim)
+        limit = self.explicit_limit(ctx)
         if mode == "explicit":
             return limit
         self._probing = True  # auto: compare with what the other limits allow
         try:
-            others = min(sim.dt_limits().values(), default=math.inf)
+            others = min(ctx.dt_limits().values(), default=math.inf)
         finally:
             self._probing = False
         return limit if limit >= others else math.inf
 
-    def force(self, sim, dt: float):
-        f, s = sim.fields, self.settings
-        self.solver.set_viscosity(f.types, f.liq_volume, f.gas_volume, sim.two_phase, self.mu_liquid, self.mu_gas)
-        sim.host_state["viscous_rate"] = np.array([self.solver.prepare(f.types, f.inv_rho, dt)])
-        limit = self.explicit_limit(sim)
+    def force(self, ctx, dt: float):
+        f, s = ctx.fields, self.settings
+        self.solver.set_viscosity(f.types, f.liq_volume, f.gas_volume, ctx.two_phase, self.mu_liquid, self.mu_gas)
+        self.state.rate = float(self.solver.prepare(f.types, f.inv_rho, dt))
+        limit = self.explicit_limit(ctx)
         if s.solver == "implicit" or (s.solver == "auto" and dt > limit):
             info = self.solver.implicit(f.types, f.inv_rho, f.vel, dt, s.tolerance, s.max_iterations)
             c = self.counts

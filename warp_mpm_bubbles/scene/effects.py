@@ -13,12 +13,14 @@ A scene that names none of them runs none of their stages (Scene.effects lists w
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from .checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
+from ..core.stage import registered_settings
 
 BOUNDARIES = ("no_slip", "free_slip")
 MAX_BUBBLE_RATE = 1.0e5  # bubbles per second from one gas injector
@@ -145,7 +147,28 @@ class Viscosity:
                           "[materials.NAME].viscosity (Pa s) or remove [effects.viscosity]")
 
 
-EFFECT_TYPES = {cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment, Viscosity)}
+class _EffectTypes(Mapping):
+    """The settings of each [effects.KEY] table: the built-in ones, then those of the stages from
+    outside the package, asked of the stage registry (core/stage.py, register_stage) when read, so
+    a stage registered after this module loaded is known to every scene checked after it."""
+
+    def __init__(self, builtin: dict):
+        self._builtin = builtin
+
+    def _all(self) -> dict:
+        return {**self._builtin, **registered_settings()}
+
+    def __getitem__(self, key):
+        return self._all()[key]
+
+    def __iter__(self):
+        return iter(self._all())
+
+    def __len__(self):
+        return len(self._all())
+
+
+EFFECT_TYPES = _EffectTypes({cls.key: cls for cls in (Foam, SubgridBubbles, Entrainment, Viscosity)})
 
 
 # ------------------------------------------------------------------------------------ emitters

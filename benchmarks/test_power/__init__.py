@@ -1,0 +1,1 @@
+"""How much the test suite catches: deliberate errors, one at a time."""

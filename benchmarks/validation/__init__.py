@@ -1,0 +1,1 @@
+"""How close the physics comes to a reference: analytic, published or the study's own finest run."""

@@ -1,0 +1,87 @@
+"""Kernel launches: every launch of the step goes through one `Launcher`, so `launches` proves what
+ran, and the CPU's threads share the work where a kernel's result does not depend on the split
+(core/threads.py). The simulation and the stages (through their step context) launch with it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import warp as wp
+
+from . import threads
+from .threads import Parallel, line_slabs, split
+
+
+class Launcher:
+    """The launch helpers, on one device with the CPU's threads (`parallel`). `particles`: the
+    particle state whose count sets a per-particle launch; `grid`: the MAC grid; `region`: the grid
+    stages' box (core/active_box.py), the default box of a splat (set once the simulation built it)."""
+
+    def __init__(self, device, parallel: Parallel, grid, particles, region=None):
+        self.device, self.parallel, self.grid, self.particles, self.region = device, parallel, grid, particles, region
+        self.launches: Counter[str] = Counter()  # kernel launches by name: proof of what ran
+        self._loaded: set = set()  # kernels launched once already (launch_parts)
+
+    @property
+    def threads(self) -> int:
+        return self.parallel.threads
+
+    def launch(self, kernel, dim, inputs):
+        """Every kernel launch goes through here, so `launches` proves what ran."""
+        self.launches[kernel.key] += 1
+        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
+
+    def launch_splat(self, kernel, inputs, region=None):
+        """Launch a particle-to-grid kernel over every particle, its last two arguments the slab
+        [x_lo, x_hi) of grid nodes along x it writes: one slab a thread on the CPU, cut evenly across
+        the region's nodes (faces: one more than cells), the first and last reaching the arrays' ends
+        so every node belongs to some part. Each part visits the particles in index order, so every
+        node sums them in that order whatever the split (core/threads.py)."""
+        r = region or self.region
+        cuts = split(r.box[0][0], r.box[1][0] + 1, self.threads)
+        cuts[0], cuts[-1] = 0, self.grid.face_shape(0)[0]
+        self.launch_parts(kernel, [(self.particles.count, [*inputs, a, b]) for a, b in zip(cuts, cuts[1:])])
+
+    def launch_lines(self, kernel, lines, inputs):
+        """Launch a kernel that walks a box of cells or faces, a line per thread (core/lines.py), and
+        writes only what it walks: lines = (Lines, dims), the Lines struct its first argument. A box of
+        SPLIT_CELLS or more runs in slabs on the CPU's threads, with the same result."""
+        slabs = line_slabs(*lines, self.threads)
+        if len(slabs) == 1:
+            self.launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+        else:
+            self.launch_parts(kernel, [(d, [slab, *inputs]) for slab, d in slabs])
+
+    def launch_particles(self, kernel, inputs):
+        """Launch a per-particle kernel whose first argument is the index of its first particle and
+        which writes only its own particles' values: in ranges at once on the CPU's threads (no
+        particle's result depends on the split), one launch for few particles or one thread."""
+        n = self.particles.count
+        if n == 0:
+            return
+        cuts = split(0, n, self.threads if n >= threads.SPLIT_PARTICLES else 1)
+        self.launch_parts(kernel, [(b - a, [a, *inputs]) for a, b in zip(cuts, cuts[1:]) if b > a])
+
+    def launch_box(self, kernel, lo, dims, inputs):
+        """Launch a kernel over the box of `dims` cells or faces from `lo` (its last argument: the offset
+        of its thread index) that writes only what it is launched on: in slabs along x at once on the
+        CPU's threads when the box holds SPLIT_CELLS or more."""
+        cuts = split(0, dims[0], self.threads if math.prod(dims) >= threads.SPLIT_CELLS else 1)
+        self.launch_parts(kernel, [((b - a, *dims[1:]), [*inputs, wp.vec3i(lo[0] + a, lo[1], lo[2])])
+                                   for a, b in zip(cuts, cuts[1:]) if b > a])
+
+    def launch_parts(self, kernel, parts):
+        """Launch `kernel` once per (dim, inputs) part, the parts at once on the CPU's threads (but the
+        first time one after the other: the first launch compiles or loads the kernel's module, which
+        must happen once, on one thread)."""
+        self.launches[kernel.key] += len(parts)
+        calls = [lambda d=d, inputs=inputs: wp.launch(kernel, dim=d, inputs=inputs, device=self.device)
+                 for d, inputs in parts]
+        if kernel in self._loaded:
+            self.parallel.run(calls)
+        elif calls:  # (no part: an empty box, nothing loaded yet)
+            for call in calls:
+                call()
+            self._loaded.add(kernel)

@@ -2,7 +2,7 @@
 
 A matrix-free, symmetric positive definite approximation of A^-1 for
 :class:`~warp_mpm_bubbles.pressure.PressureSystem`, rebuilt cheaply at every solve because the
-cell types and face weights change every step. Choices (measured in benchmarks/pressure_solver.py):
+cell types and face weights change every step. Choices (measured in benchmarks/performance/pressure_solver.py):
 
 - Levels: coarsen by 2 along the simulated axes (ceil(n/2): odd sizes and non-powers of two are
   fine) until at most MAX_COARSEST_CELLS cells are left. Coarse cell C has the fine children

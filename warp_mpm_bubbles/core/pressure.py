@@ -9,7 +9,7 @@ no read-back per iteration (PressureSolver). All launches cover the fluid cells'
 
 Preconditioners: "none", "jacobi" (diagonal), "multigrid" (one symmetric V-cycle). Jacobi-PCG
 iterations grow linearly with the resolution and with the density ratio; multigrid-PCG's barely
-grow (benchmarks/pressure_solver.py).
+grow (benchmarks/performance/pressure_solver.py).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from .threads import Parallel, line_slabs
 wp.set_module_options({"enable_backward": False})
 
 NONE, JACOBI, MULTIGRID = range(3)  # indices of PRECONDITIONERS
-# Iterations between the host's convergence checks after the first (benchmarks/domain_scaling.py
+# Iterations between the host's convergence checks after the first (benchmarks/performance/domain_scaling.py
 # --check-every: 1, 2, 4 and 8 within noise on the CPU; 2 wastes at most one no-op iteration).
 CHECK_EVERY = 2
 

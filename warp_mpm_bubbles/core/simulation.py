@@ -55,7 +55,7 @@ from .voids import VoidPass
 EXTRAPOLATION_LAYERS = 2  # the B-spline stencil reaches 1.5 cells beyond a particle's cell
 GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # else 0: fixed density
 # Steps between sorts of the particles by cell (Simulation.sort_every; 10 pays at 64^3, see
-# benchmarks/transfers.py); 0: never. Off by default: a sort reorders the transfers' float sums,
+# benchmarks/performance/transfers.py); 0: never. Off by default: a sort reorders the transfers' float sums,
 # and that rounding-level change tipped two chaotic bubble tests across their bounds (a rising
 # bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
 SORT_EVERY = 0

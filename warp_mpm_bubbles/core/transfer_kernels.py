@@ -216,7 +216,7 @@ def interpolate_velocity(vel: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float
 #   its sums are bit for bit those of one pass per component. Its cost is the number of
 #   read-modify-writes (about the same for a vec2 as for a float), so it adds (momentum, mass)
 #   pairs, split afterwards by split_pairs: 135 per particle instead of 270. Measured with
-#   benchmarks/transfers.py: 0.7x for the fused pass, then 0.76x for the pairs.
+#   benchmarks/performance/transfers.py: 0.7x for the fused pass, then 0.76x for the pairs.
 # - g2p applies the weights one axis at a time, two multiply-adds per node (it was compute-bound):
 #   0.75x of the fused loop, equal to it within float32 rounding.
 

@@ -386,7 +386,7 @@ def _write_manifest(folder: Path, members):
 
 
 class dask_client:
-    """A Client for the wedge (or any batch of runs: benchmarks/accuracy_vs_time.py), and the
+    """A Client for the wedge (or any batch of runs: benchmarks/validation/accuracy_vs_time.py), and the
     LocalCluster it started, one single-threaded worker process per core (closed on exit).
     scheduler: None, an address, or a Client (used as is, left open)."""
 

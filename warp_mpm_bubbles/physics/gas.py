@@ -303,7 +303,7 @@ class GasStage(Stage):
         the liquid cfl cells (pressure_step: it sees a violent start before anything moves) and
         (b) the step in which the fastest-changing gas cell changes volume by GAS_EXPANSION_SHARE,
         at the last step's rate. Without it a gas seeded at 10 atm started with an 8 ms step, 60
-        times its expansion time (benchmarks/rate_invariance.py expansion)."""
+        times its expansion time (benchmarks/validation/rate_invariance.py expansion)."""
         key = (ctx.stats.steps, ctx.time, ctx.particles.count)
         if self._limit[0] == key:
             return self._limit[1]

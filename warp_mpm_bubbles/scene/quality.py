@@ -3,7 +3,7 @@
 A preset fills the [solver] settings it governs when the scene leaves them unset; a value the
 scene sets itself wins. `--quality` on the command line replaces the scene's own values (the
 user's latest word). The values come from the measured accuracy-vs-time frontier
-(`benchmarks/accuracy_vs_time.py`, docs/accuracy_vs_time.md). Resolution is the one lever that
+(`benchmarks/validation/accuracy_vs_time.py`, benchmarks/results/accuracy_vs_time/cpu.md). Resolution is the one lever that
 lowered every error there, so `reference` also refines the grid: `refine` grid cells per
 [domain].cell_size along each axis (the scene's geometry and cell_size stay as written).
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 DEFAULT_QUALITY = "production"
 
-# particles_per_cell is given per dimension: (2D, 3D). Measured (docs/presets.md): cg_tolerance moved
+# particles_per_cell is given per dimension: (2D, 3D). Measured (benchmarks/results/accuracy_vs_time/cpu_presets.md): cg_tolerance moved
 # no error between 1e-3 and 1e-7; cfl 1.0 halves the steps of free-surface runs at about twice
 # the volume drift, 0.25 lowers it; more than 2 particles per cell and axis lowered no error beyond
 # the seed noise and raised the dam break's volume loss (2D and 3D), so every preset keeps 4 / 8.

@@ -37,7 +37,7 @@ def test_liquid_only_scene_launches_only_core_kernels(tmp_path):
     assert sim.effects == []
     threaded = {"fastest_of_parts"} if sim.parallel.threads > 1 else set()  # g2p's parts' speeds (core/threads.py)
     assert set(sim.launches) == CORE_KERNELS | threaded  # no gas, tension, viscosity, collider, foam or bubble kernel
-    assert sim.timer.stages_run == CORE_STAGES
+    assert sim.timer.phases_run == CORE_STAGES
 
 
 def test_each_effect_adds_only_its_own_stages(tmp_path):
@@ -55,7 +55,7 @@ def test_each_effect_adds_only_its_own_stages(tmp_path):
                      "fill_box",  # the stream's nozzle: how full its cells are (effects/emitters.py)
                      "liquid_level_set", "smooth_level_set", "height_fraction", "column_heights", "surface_curvature",
                      "average_curvature", "apply_surface_tension"}
-    assert sim.timer.stages_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]
+    assert sim.timer.phases_run == ["emitters", *CORE_STAGES[:2], "tension", *CORE_STAGES[2:], "colliders"]
 
 
 def test_gas_is_an_effect_of_the_materials_used(tmp_path):
@@ -76,7 +76,7 @@ def test_summary_lists_the_stages_that_ran(tmp_path):
     log = io.StringIO()
     run_scene(scene.validate(), device="cpu", log=log)
     text = log.getvalue()
-    assert "stages run: output, p2g, grid, pressure, extend, g2p, colliders" in text  # frame 0 is written first
+    assert "phases timed: output, p2g, grid, pressure, extend, g2p, colliders" in text  # frame 0 is written first
     assert "effects: colliders" in text
 
 

@@ -198,7 +198,7 @@ def test_foam_on_changes_only_what_becomes_of_the_surfaced_gas(tmp_path):
     # Launches: foam's kernels only when asked, and then no vent kernel.
     assert not FOAM_KERNELS & set(off.launches) and "vent_exposed_gas" in off.launches
     assert FOAM_KERNELS <= set(on.launches) and "vent_exposed_gas" not in on.launches
-    assert "foam" in on.timer.stages_run and "vent" not in on.timer.stages_run
+    assert "foam" in on.timer.phases_run and "vent" not in on.timer.phases_run
 
 
 def test_foam_in_a_liquid_only_scene_launches_nothing(tmp_path):

@@ -236,7 +236,7 @@ def test_liquid_only_scene_runs_no_gas_stage(tmp_path):
                   shapes=[Box("water", min=(0.0, 0.0), max=(0.1, 0.05))], output=Output(path=str(tmp_path / "w.usdc")))
     sim = Simulation(scene, "cpu")
     sim.step(sim.stable_dt())
-    assert not sim.has_gas and "vent" not in sim.timer.stages_run
+    assert not sim.has_gas and "vent" not in sim.timer.phases_run
     assert sim.fields.gas_volume.shape == (1, 1, 1)  # gas arrays are placeholders, never read
 
 

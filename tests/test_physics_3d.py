@@ -58,7 +58,7 @@ def test_3d_drop_pressure_is_two_sigma_over_r(tmp_path):
     sim, ratios, _ = laplace_run(tmp_path, 24, bubble=False)
     print(f"3D drop, 24^3: p_inside / (2 sigma/R) = {np.round(ratios, 4)}, mean {ratios.mean():.4f}")
     assert 0.955 < ratios.mean() < 0.99, ratios
-    assert "tension" in sim.timer.stages_run
+    assert "tension" in sim.timer.phases_run
 
 
 def test_3d_bubble_jump_is_two_sigma_over_r(tmp_path):

@@ -56,7 +56,7 @@ def test_a_stage_from_outside_runs_only_when_its_scene_asks(tmp_path, damping):
     print(f"plain {v_plain:.6f}, damped/plain {v_damped / v_plain:.6f} vs exp(-rate t) {math.exp(-2.0 * t):.6f}")
     assert v_plain == pytest.approx(1.0, rel=1e-3)  # measured -4.5e-4: the drop's surface faces
     assert v_damped / v_plain == pytest.approx(math.exp(-2.0 * t), rel=1e-4)
-    assert damped.timer.stages_run == ["p2g", "grid", "damping", "pressure", "extend", "g2p"]
+    assert damped.timer.phases_run == ["p2g", "grid", "damping", "pressure", "extend", "g2p"]
 
 
 def test_an_outside_stage_keys_are_checked_like_the_rest(tmp_path, damping):
@@ -102,7 +102,7 @@ def test_stages_share_hooks_in_step_order(tmp_path):
     assert [s.name for s in sim._hooks["on_cells"]] == ["colliders", "gas"]
     assert [s.name for s in sim._hooks["after_g2p"]] == ["surface_tension", "gas"]
     sim.step(sim.stable_dt())
-    assert sim.timer.stages_run == ["p2g", "grid", "tension", "pressure", "extend", "g2p", "vent", "colliders"]
+    assert sim.timer.phases_run == ["p2g", "grid", "tension", "pressure", "extend", "g2p", "vent", "colliders"]
     limits = sim.dt_limits()
     assert set(limits) == {"cfl", "capillary", "gas_expansion"} and sim.stable_dt() == min(limits.values())
     from warp_mpm_bubbles.scene.limits import STEP_FIXES

@@ -259,7 +259,7 @@ def test_effects_off_launch_nothing_and_on_change_nothing_without_bubbles(tmp_pa
     assert not EFFECT_KERNELS & set(off.launches)
     assert EFFECT_KERNELS <= set(on.launches)
     assert set(on.launches) - set(off.launches) == EFFECT_KERNELS
-    assert {"subgrid_bubbles", "entrainment"} <= set(on.timer.stages_run)
+    assert {"subgrid_bubbles", "entrainment"} <= set(on.timer.phases_run)
 
 
 def test_resume_from_a_checkpoint_repeats_the_run(tmp_path):

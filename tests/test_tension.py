@@ -100,7 +100,7 @@ def test_bubble_spurious_currents_decay(bubble):
 
 def test_tension_runs_only_when_asked_and_limits_the_step(drop, tmp_path):
     sim, _, _, _ = drop
-    assert "tension" in sim.timer.stages_run
+    assert "tension" in sim.timer.phases_run
     dx = sim.grid.dx
     assert max(sim.stats.dt_history) <= math.sqrt(1000.0 * dx**3 / (4 * math.pi * SIGMA)) * (1 + 1e-9)
     plain = Scene(domain=Domain(size=(0.04, 0.04), cell_size=R / 8, gravity=(0.0, 0.0)),
@@ -109,7 +109,7 @@ def test_tension_runs_only_when_asked_and_limits_the_step(drop, tmp_path):
                   output=Output(path=str(tmp_path / "p.usdc")))
     other = Simulation(plain, "cpu")
     other.step(other.stable_dt())
-    assert "tension" not in other.timer.stages_run
+    assert "tension" not in other.timer.phases_run
 
 
 def test_gas_films_retract_into_the_bubble_beside_them():

@@ -209,7 +209,7 @@ def test_inviscid_taylor_green_cell_holds(runs):
     amplitude, sim = runs["inviscid"]
     print(f"Taylor-Green, inviscid: amplitude {amplitude:.4f} after {sim.stats.steps} steps")
     assert 0.925 < amplitude < 0.945
-    assert "viscosity" not in sim.timer.stages_run
+    assert "viscosity" not in sim.timer.phases_run
 
 
 # ------------------------------------------------------------------ a honey drop at the CFL step

@@ -23,7 +23,7 @@ solver and the grid stages over the whole grid), "box" (as the step runs now) an
 
 Each round steps every configuration --steps times, in an order that alternates between rounds, after
 --warmup untimed steps (kernel compile or cache load); figures are medians over --rounds rounds of the
-per-step milliseconds (StageTimer). Writes benchmarks/results/domain_scaling/<device>[_<label>].{json,md}.
+per-step milliseconds (PhaseTimer). Writes benchmarks/results/domain_scaling/<device>[_<label>].{json,md}.
 """
 
 from __future__ import annotations

@@ -289,9 +289,9 @@ def run_timing(code, args) -> dict:
     warmup = time.perf_counter() - t0
     if sim is not None:  # count only the timed steps
         from warp_mpm_bubbles.core.simulation import SolverStats
-        from warp_mpm_bubbles.core.timing import StageTimer
+        from warp_mpm_bubbles.core.timing import PhaseTimer
 
-        sim.timer, sim.stats = StageTimer(sim.device), SolverStats()
+        sim.timer, sim.stats = PhaseTimer(sim.device), SolverStats()
     t0 = time.perf_counter()
     for _ in range(args.steps):
         code.step()

@@ -24,7 +24,7 @@ import warp as wp
 
 from warp_mpm_bubbles import Box, Domain, Material, Scene, SolverSettings
 from warp_mpm_bubbles.core.simulation import Simulation, SolverStats
-from warp_mpm_bubbles.core.timing import StageTimer
+from warp_mpm_bubbles.core.timing import PhaseTimer
 
 from benchmarks import harness
 
@@ -53,7 +53,7 @@ def run_size(n: int, args, dev) -> dict:
         first = first or time.perf_counter() - t0  # the first step compiles or loads the kernels
     warmup = time.perf_counter() - t0
 
-    sim.timer, sim.stats = StageTimer(sim.device), SolverStats()
+    sim.timer, sim.stats = PhaseTimer(sim.device), SolverStats()
     t0 = time.perf_counter()
     for _ in range(args.steps):
         sim.step(sim.stable_dt())

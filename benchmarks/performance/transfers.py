@@ -88,11 +88,11 @@ def timed(fn, reps: int) -> float:
 
 
 def stage_timer(device):
-    """The simulation's StageTimer on CLOCK."""
+    """The simulation's PhaseTimer on CLOCK."""
     import warp as wp
-    from warp_mpm_bubbles.core.timing import StageTimer
+    from warp_mpm_bubbles.core.timing import PhaseTimer
 
-    class Timer(StageTimer):
+    class Timer(PhaseTimer):
         @contextmanager
         def __call__(self, stage: str):
             start = CLOCK()

@@ -10,7 +10,7 @@ Two scenes, the same N^3 closed box (free-slip) and the same centred block at 8 
 with surface tension 0.072 N/m. The sphere's cells are seeded with air instead of water, so the
 particle counts match. Both are stepped with the same fixed dt (the smaller of their stable steps
 at the start), so the cost per step compares like with like. Rounds alternate the order; medians
-of ms per step and per stage (StageTimer). Writes benchmarks/results/two_phase_cost/<device>.{json,md}
+of ms per step and per stage (PhaseTimer). Writes benchmarks/results/two_phase_cost/<device>.{json,md}
 (other grids: <device>_g<N>.{json,md}).
 """
 

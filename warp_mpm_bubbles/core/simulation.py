@@ -45,7 +45,7 @@ from .launch import Launcher
 from .stage import Stage, build_stages
 from .step import GRID_WRITING_HOOKS, HOOKS, PHASES, Run, step_plan
 from .state import GridFields, ParticleState
-from .timing import StageTimer
+from .timing import PhaseTimer
 from . import readout, sealed_regions, threads
 from .threads import Parallel, cpu_threads, line_slabs, split
 from .gas_law import GAS_ADIABATIC, GAS_ISOTHERMAL
@@ -99,7 +99,7 @@ class Simulation:
         self.effects = self.scene.effect_names  # the optional stages that run; no others do
         self.device = wp.get_device(device)
         self.grid = g = MacGrid.from_domain(scene.domain)
-        self.timer = StageTimer(self.device)
+        self.timer = PhaseTimer(self.device)
         self.max_particle_speed = 0.0  # m/s, from the last step (it sets the next time step)
         self.sort_every = SORT_EVERY
         self._sorted_at = 0  # the step of the last sort by cell

@@ -1,6 +1,7 @@
-"""Wall-clock seconds per pipeline stage, and the list of stages that ran.
+"""Wall-clock seconds per timed phase of the step (the core's and each stage's timer line), and the
+list of those that ran.
 
-On CUDA, launches are asynchronous, so each stage synchronizes at its end to charge its own time;
+On CUDA, launches are asynchronous, so each phase synchronizes at its end to charge its own time;
 on the CPU, launches are synchronous and the synchronization is skipped.
 """
 
@@ -14,23 +15,23 @@ from contextlib import contextmanager
 import warp as wp
 
 
-class StageTimer:
+class PhaseTimer:
     def __init__(self, device):
         self.device = device
         self.seconds: dict[str, float] = {}  # insertion order = order of first run
 
     @contextmanager
-    def __call__(self, stage: str):
+    def __call__(self, phase: str):
         start = time.perf_counter()
         try:
             yield
         finally:
             if self.device.is_cuda:
                 wp.synchronize_device(self.device)
-            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
+            self.seconds[phase] = self.seconds.get(phase, 0.0) + time.perf_counter() - start
 
     @property
-    def stages_run(self) -> list[str]:
+    def phases_run(self) -> list[str]:
         return list(self.seconds)
 
     @property

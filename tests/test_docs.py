@@ -65,3 +65,20 @@ def test_scene_reference_covers_every_table():
     """A table the model gains (a new effect, emitter or shape) needs its own section."""
     documented = _documented_tables(SCENES.read_text())
     assert set(_model_tables()) <= set(documented)
+
+
+def test_validation_page_is_what_the_report_writes_from_the_saved_results():
+    from benchmarks.validation import report
+
+    committed = (ROOT / "docs" / "validation.md").read_text()
+    assert committed == report.render(), ("docs/validation.md is out of date with benchmarks/results/: "
+                                          "run python -m benchmarks.validation.report and commit the page")
+
+
+def test_readme_quick_start_runs_the_same_tests_as_ci():
+    """The README's test command is the one .ci/run calls, word for word."""
+    ci = (ROOT / ".ci" / "run").read_text()
+    command = next(line.strip() for line in ci.splitlines() if "pytest" in line and not line.startswith("#"))
+    readme = (ROOT / "README.md").read_text()
+    quick_start = readme.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    assert command in quick_start.splitlines(), (command, quick_start)

@@ -54,7 +54,7 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
     parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
                         help="quality preset; replaces the scene's particles_per_cell, cfl, cg_tolerance and refine "
-                             "(README: error and cost per preset)")
+                             "(docs/physics.md: error and cost per preset)")
     talk = parser.add_mutually_exclusive_group()
     talk.add_argument("--quiet", action="store_true",
                       help="print nothing but errors (the summary still goes to <stem>_frames/run.log)")

@@ -1,8 +1,8 @@
 """`warp-mpm-bubbles validate`: run the validation cases (validation_cases.py) on this machine and
 print one table, case by case: the reference, our figure, the error, the bound, pass or FAIL.
 
-    warp-mpm-bubbles validate            # the quick set, a minute or two on a laptop's CPU
-    warp-mpm-bubbles validate --full     # the same cases on finer grids (several minutes)
+    warp-mpm-bubbles validate            # the quick set: seconds once Warp's kernels are compiled
+    warp-mpm-bubbles validate --full     # the same cases on finer grids: about a minute on two cores
     warp-mpm-bubbles validate --cases free_fall,hydrostatic
 
 Exit 0 when every case passes, 1 when any fails, 2 for a case name it does not know.
@@ -20,7 +20,7 @@ from pathlib import Path
 def add_validate_arguments(parser: argparse.ArgumentParser) -> None:
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="the quick cases at their small size (the default)")
-    size.add_argument("--full", action="store_true", help="the same cases on finer grids: several minutes")
+    size.add_argument("--full", action="store_true", help="the same cases on finer grids (about a minute on two CPU cores)")
     parser.add_argument("--cases", default=None,
                         help="comma-separated case names to run (default: all); --cases list names them")
     parser.add_argument("--device", default="cpu", help='Warp device, e.g. "cpu" or "cuda:0" (default cpu)')

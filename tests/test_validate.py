@@ -60,3 +60,22 @@ def test_an_unknown_case_is_refused_by_name(capsys):
 def test_every_case_has_a_docstring_and_a_bound(name):
     fn, quick, smallest = validation_cases.CASES[name]
     assert fn.__doc__ and "ound" in fn.__doc__  # its bound and where it comes from
+
+
+def test_a_device_this_machine_lacks_is_refused_before_any_case(capsys):
+    assert cli.main(["validate", "--cases", "free_fall", "--device", "nonsense"]) == 2
+    captured = capsys.readouterr()
+    assert "--device" in captured.err and "nonsense" in captured.err and "cpu" in captured.err
+    assert "free fall" not in captured.out  # no case ran
+
+
+def test_a_case_whose_run_stops_fails_with_its_message(capsys, monkeypatch):
+    from warp_mpm_bubbles.core.simulation import SimulationError
+
+    def stops(work, device, fine=False):
+        raise SimulationError("NaN in the particles at step 3")
+
+    monkeypatch.setitem(validation_cases.CASES, "free_fall", (stops, True, True))
+    assert cli.main(["validate", "--cases", "free_fall"]) == 1
+    out = capsys.readouterr().out
+    assert "stopped: NaN in the particles" in out and "FAIL" in out

@@ -61,7 +61,8 @@ def chosen_cases(names: str | None, cases: dict) -> list[str]:
 
 def validate_command(args) -> int:
     from .cli import start_warp
-    from .validation_cases import CASES
+    from .core.simulation import SimulationError
+    from .validation_cases import CASES, Row
 
     if args.cases is not None and args.cases.strip() == "list":
         for name, (fn, _, _) in CASES.items():
@@ -73,13 +74,23 @@ def validate_command(args) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     start_warp(quiet=True)
+    from .io.devices import DeviceError, check_device
+
+    try:  # a device this machine lacks is refused before any case runs, naming the ones it has
+        check_device(args.device)
+    except DeviceError as err:
+        print(f"error: --device: {err}", file=sys.stderr)
+        return 2
     rows, start = [], time.perf_counter()
     size = "full" if args.full else "quick"
     print(f"validating {len(names)} cases ({size}) on {args.device}: {', '.join(names)}", flush=True)
     with tempfile.TemporaryDirectory(prefix="warp_mpm_validate_") as work:
         for name in names:
             t0 = time.perf_counter()
-            new = CASES[name][0](Path(work), args.device, fine=args.full)
+            try:
+                new = CASES[name][0](Path(work), args.device, fine=args.full)
+            except SimulationError as err:  # the case's run stopped (a NaN, a step limit): it fails
+                new = [Row(name, "-", f"stopped: {' '.join(str(err).split())[:60]}", float("nan"), 0.0, 0.0)]
             rows.extend(new)
             print(f"  {name}: {time.perf_counter() - t0:.1f} s, "
                   + ", ".join("pass" if r.passed else "FAIL" for r in new), flush=True)

@@ -259,17 +259,18 @@ def summary(result: RunResult) -> str:
     """Seconds per stage, CG effort, particles and steps: what the run cost and where."""
     sim = result.simulation
     st, timer = sim.stats, sim.timer
+    w = max([10] + [len(stage) + 2 for stage in timer.seconds])  # a long stage name widens the column
     lines = [
         f"{sim.scene.name}: {result.frames_written} frames to {result.stage_path}, "
         f"{sim.time:.3f} s simulated in {st.steps} steps, {sim.num_particles:,} particles, "
         f"{sim.grid.dim}D {'x'.join(map(str, sim.grid.interior[:sim.grid.dim]))} cells, device {sim.device}",
-        f"  {'stage':<10}{'seconds':>10}{'share':>8}{'ms/step':>10}",
+        f"  {'stage':<{w}}{'seconds':>10}{'share':>8}{'ms/step':>10}",
     ]
     total = timer.total
     for stage, seconds in timer.seconds.items():
         per_step = 1e3 * seconds / max(st.steps, 1)
-        lines.append(f"  {stage:<10}{seconds:>10.2f}{100 * seconds / total:>7.0f}%{per_step:>10.2f}")
-    lines.append(f"  {'total':<10}{total:>10.2f}   (wall {result.wall_seconds:.2f} s incl. setup and compile)")
+        lines.append(f"  {stage:<{w}}{seconds:>10.2f}{100 * seconds / total:>7.0f}%{per_step:>10.2f}")
+    lines.append(f"  {'total':<{w}}{total:>10.2f}   (wall {result.wall_seconds:.2f} s incl. setup and compile)")
     mean = st.cg_iterations / max(st.cg_solves, 1)
     lines.append(f"  pressure CG: {st.cg_iterations:,} iterations over {st.cg_solves} solves "
                  f"(mean {mean:.1f}, max {st.cg_max_iterations}), worst residual {st.cg_worst_residual:.1e}"

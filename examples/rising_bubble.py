@@ -5,7 +5,7 @@ water and air prototypes.
     warp-mpm-bubbles preview rising_bubble.usdc --frames 0,4,8,12
 
 Known limitation (issue #3): the bubble's skirt sheds small gas pockets into the water (about 4%
-of the gas in 0.5 s); see the README's Bubbles section.
+of the gas in 0.5 s); see docs/physics.md, Bubbles.
 """
 
 import pathlib

@@ -21,6 +21,7 @@ from .scene.model import SceneError, load_scene
 from .io.paths import output_path_problem
 from .io.streams import guarded_std_streams
 from .io.wedge import add_wedge_arguments
+from .validate import add_validate_arguments
 
 DEBUG_ENV = "WARP_MPM_BUBBLES_DEBUG"
 REPORT_TO = "the warp_mpm_bubbles issue tracker (the project's GitHub issues)"
@@ -53,7 +54,7 @@ def add_run_overrides(parser: argparse.ArgumentParser):
     parser.add_argument("--stage-path", default=None, help="output .usd/.usdc/.usda path (overrides the scene)")
     parser.add_argument("--quality", choices=tuple(PRESETS), default=None,
                         help="quality preset; replaces the scene's particles_per_cell, cfl, cg_tolerance and refine "
-                             "(README: error and cost per preset)")
+                             "(docs/physics.md: error and cost per preset)")
     talk = parser.add_mutually_exclusive_group()
     talk.add_argument("--quiet", action="store_true",
                       help="print nothing but errors (the summary still goes to <stem>_frames/run.log)")
@@ -182,6 +183,9 @@ def main(argv=None) -> int:
     _add_blender_parser(sub)
     wedge_p = sub.add_parser("wedge", help="run variations of a scene (a wedge) as Dask tasks, one output per member")
     add_wedge_arguments(wedge_p)
+    validate_p = sub.add_parser("validate", help="run the validation cases against their references and print a "
+                                                 "table; exit 1 if any fails")
+    add_validate_arguments(validate_p)
     with guarded_std_streams():  # `--help | head` too
         args = parser.parse_args(argv)
         return guarded(lambda: _main(args))
@@ -196,6 +200,10 @@ def _main(args) -> int:
         return wedge_command(args)
     if args.command == "preview":
         return _preview(args)
+    if args.command == "validate":
+        from .validate import validate_command
+
+        return validate_command(args)
     try:
         if args.command == "check":
             return _check(args.scene, args.device)

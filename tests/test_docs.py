@@ -68,11 +68,11 @@ def test_scene_reference_covers_every_table():
 
 
 def test_validation_page_is_what_the_report_writes_from_the_saved_results():
-    from benchmarks.validation import report
+    from benchmarks import report
 
     committed = (ROOT / "docs" / "validation.md").read_text()
     assert committed == report.render(), ("docs/validation.md is out of date with benchmarks/results/: "
-                                          "run python -m benchmarks.validation.report and commit the page")
+                                          "run python -m benchmarks.report and commit the page")
 
 
 def test_readme_quick_start_runs_the_same_tests_as_ci():

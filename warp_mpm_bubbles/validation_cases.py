@@ -17,6 +17,7 @@ import numpy as np
 
 from . import Box, Cylinder, Domain, Material, Output, Scene, SolverSettings, Sphere
 from .core.simulation import Simulation
+from .references import P_ATM, R0, R_OUT0, T_UNIT, reference_times
 
 G = 9.81  # m/s^2: the gravity every case's scene asks for, and its reference uses
 RHO = 1000.0
@@ -131,40 +132,19 @@ def torricelli(work: Path, device: str, fine: bool = False) -> list[Row]:
 
 
 # The cavity: an empty cylinder R0 (gas at 1 Pa) in a free water annulus 3 R0 across collapses; the
-# reference is the 2D Rayleigh-Plesset equation for that annulus, integrated by RK4.
-P_ATM, R0, R_OUT = 101325.0, 0.01, 3.0
-T_UNIT = R0 * math.sqrt(RHO / P_ATM)
-
-
-def _rayleigh_time(target: float, p_g0: float = 1.0 / P_ATM, dt: float = 1e-4) -> float:
-    """t / T_UNIT when the cylindrical Rayleigh-Plesset radius (in R0) first falls to `target`."""
-    def acc(r, v):
-        r_out = math.sqrt(R_OUT * R_OUT + r * r - 1.0)  # the annulus keeps its area
-        return ((p_g0 * r**-2 - 1.0) - 0.5 * v * v * (r * r / (r_out * r_out) - 1.0)) / (r * math.log(r_out / r)) - v * v / r
-
-    t, r, v = 0.0, 1.0, 0.0
-    while True:
-        k1r, k1v = v, acc(r, v)
-        k2r, k2v = v + 0.5 * dt * k1v, acc(r + 0.5 * dt * k1r, v + 0.5 * dt * k1v)
-        k3r, k3v = v + 0.5 * dt * k2v, acc(r + 0.5 * dt * k2r, v + 0.5 * dt * k2v)
-        k4r, k4v = v + dt * k3v, acc(r + dt * k3r, v + dt * k3v)
-        r_new = r + dt / 6.0 * (k1r + 2 * k2r + 2 * k3r + k4r)
-        v += dt / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
-        if r_new <= target:
-            return t + dt * (r - target) / (r - r_new)
-        t, r = t + dt, r_new
+# reference is the 2D Rayleigh-Plesset equation for that annulus, integrated by RK4 (references.py).
 
 
 def cavity_collapse(work: Path, device: str, fine: bool = False) -> list[Row]:
     """The near-vacuum cavity's time to half its radius (by its gas volume) against Rayleigh-Plesset.
     Measured -0.60% at 16 cells per radius, -0.21% at 32 (order 2); bounds 1.2% and 0.6%."""
     n = 32 if fine else 16
-    size = 2 * (R_OUT + 0.5) * R0
+    size = 2 * (R_OUT0 + 0.5) * R0
     c = (size / 2, size / 2)
     scene = Scene(domain=Domain(size=(size, size), cell_size=R0 / n, gravity=(0.0, 0.0), walls="open",
                                 ambient_pressure=P_ATM),
                   materials={"water": Material("water", density=RHO), "air": Material("air", kind="gas")},
-                  shapes=[Cylinder("water", center=c, radius=R_OUT * R0),
+                  shapes=[Cylinder("water", center=c, radius=R_OUT0 * R0),
                           Cylinder("air", center=c, radius=R0, pressure=(1.0 / P_ATM - 1.0) * P_ATM)],
                   output=_out(work, "cavity"), name="cavity")
     sim = Simulation(scene, device)
@@ -175,7 +155,7 @@ def cavity_collapse(work: Path, device: str, fine: bool = False) -> list[Row]:
         t.append(sim.time / T_UNIT)
         R.append(radius())
     ours = float(np.interp(0.5, [R[-1], R[-2]], [t[-1], t[-2]])) if R[-1] <= 0.5 else float("nan")
-    ref = _rayleigh_time(0.5)
+    ref = reference_times((0.5,))[0.5]
     bound = 0.006 if fine else 0.012
     return [Row(f"cavity collapse to R0/2, {n} cells per radius", f"Rayleigh-Plesset, {ref:.4f} R0 sqrt(rho/p)",
                 f"{ours:.4f} R0 sqrt(rho/p)", ours / ref - 1.0, -bound, bound)]

@@ -59,17 +59,35 @@ def _inside_domain(c: _Checker, key, point, scene, what):
 # ------------------------------------------------------------------------------------- effects
 @dataclass
 class Foam:
-    """Gas that reaches open air becomes foam particles riding the surface instead of leaving."""
+    """Gas that reaches open air becomes foam particles riding the surface instead of leaving; the
+    liquid in their films drains by the foam-drainage equation (docs/foam.md)."""
 
     material: str = "foam"  # a kind = "foam" material (its prototype); created with defaults if absent
-    lifetime: float = 2.0  # mean seconds before a foam particle bursts (exponential lifetimes)
+    # Mean seconds before a foam particle bursts (exponential lifetimes): Bikerman's decay time of
+    # the head, whose volume falls as exp(-t / lifetime).
+    lifetime: float = 2.0
     rise_speed: float = 0.25  # m/s: foam pushed under the surface floats back up at most this fast
+    drainage: bool = True  # drain the films' liquid by the foam-drainage equation
+    bubble_radius: float = 5.0e-4  # m, of the foam's bubbles (sets the Plateau borders' size)
+    liquid_fraction: float = 0.2  # of new foam (liquid volume / foam volume)
+    viscosity: float = 1.0e-3  # Pa s, of the liquid in the films
+    surface_tension: float = 0.072  # N/m, of the films
+    permeability_constant: float = 50.0  # Verbist's Plateau-border drag coefficient C (rigid walls ~50)
     key: ClassVar[str] = "foam"
 
     def _validate(self, c: _Checker, t, scene):
         self.lifetime = c.number(f"{t}.lifetime", self.lifetime, gt=0)
         self.rise_speed = c.number(f"{t}.rise_speed", self.rise_speed, ge=0)
         _material(c, f"{t}.material", self.material, scene, ("foam",))
+        self.drainage = c.flag(f"{t}.drainage", self.drainage)
+        # Bubbles from a micrometre to a few centimetres: smaller or larger, a foam drains otherwise.
+        self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, ge=1e-6, le=0.05)
+        # Wetter than random close packing (0.36) the bubbles separate: a bubbly liquid, not a foam.
+        self.liquid_fraction = c.number(f"{t}.liquid_fraction", self.liquid_fraction, gt=0, le=0.36)
+        self.viscosity = c.number(f"{t}.viscosity", self.viscosity, gt=0, le=1000)
+        self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, gt=0, le=3)
+        self.permeability_constant = c.number(f"{t}.permeability_constant", self.permeability_constant, gt=0,
+                                              le=1e6)
 
 
 @dataclass

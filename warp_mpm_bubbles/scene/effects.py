@@ -66,6 +66,9 @@ class Foam:
     # Mean seconds before a foam particle bursts (exponential lifetimes): Bikerman's decay time of
     # the head, whose volume falls as exp(-t / lifetime).
     lifetime: float = 2.0
+    # "random": each lifetime from a hash of (seed, id); "stratified": from a low-discrepancy
+    # sequence over the ids (the same exponential law, without sampling noise)
+    lifetimes: str = "random"
     rise_speed: float = 0.25  # m/s: foam pushed under the surface floats back up at most this fast
     drainage: bool = True  # drain the films' liquid by the foam-drainage equation
     bubble_radius: float = 5.0e-4  # m, of the foam's bubbles (sets the Plateau borders' size)
@@ -79,6 +82,7 @@ class Foam:
         self.lifetime = c.number(f"{t}.lifetime", self.lifetime, gt=0)
         self.rise_speed = c.number(f"{t}.rise_speed", self.rise_speed, ge=0)
         _material(c, f"{t}.material", self.material, scene, ("foam",))
+        self.lifetimes = c.choice(f"{t}.lifetimes", self.lifetimes, ("random", "stratified"))
         self.drainage = c.flag(f"{t}.drainage", self.drainage)
         # Bubbles from a micrometre to a few centimetres: smaller or larger, a foam drains otherwise.
         self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, ge=1e-6, le=0.05)

@@ -187,7 +187,7 @@ def test_drainage_off_launches_no_drainage_kernel(tmp_path):
 
 
 @pytest.mark.parametrize("key, value, words", [
-    ("liquid_fraction", 0.5, "<= 0.36"), ("bubble_radius", 0.0, ">= 1e-06"), ("viscosity", -1.0, "> 0"),
+    ("liquid_fraction", 0.5, "random close packing"), ("bubble_radius", 0.0, "in metres"), ("viscosity", -1.0, "> 0"),
     ("surface_tension", "high", "expected a finite number"), ("permeability_constant", 0, "> 0"),
     ("lifetimes", "sometimes", "'stratified'"), ("drainage", 1, "true or false")])
 def test_bad_foam_settings_are_refused_by_name(tmp_path, key, value, words):

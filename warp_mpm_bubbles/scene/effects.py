@@ -21,6 +21,7 @@ import numpy as np
 
 from .checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
 from ..core.stage import registered_settings
+from .limits import Limit
 
 BOUNDARIES = ("no_slip", "free_slip")
 MAX_BUBBLE_RATE = 1.0e5  # bubbles per second from one gas injector
@@ -84,10 +85,12 @@ class Foam:
         _material(c, f"{t}.material", self.material, scene, ("foam",))
         self.lifetimes = c.choice(f"{t}.lifetimes", self.lifetimes, ("random", "stratified"))
         self.drainage = c.flag(f"{t}.drainage", self.drainage)
-        # Bubbles from a micrometre to a few centimetres: smaller or larger, a foam drains otherwise.
-        self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, ge=1e-6, le=0.05)
-        # Wetter than random close packing (0.36) the bubbles separate: a bubbly liquid, not a foam.
-        self.liquid_fraction = c.number(f"{t}.liquid_fraction", self.liquid_fraction, gt=0, le=0.36)
+        self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, ge=Limit(
+            1e-6, "m: smaller bubbles are not a draining foam; give the radius in metres (0.5 mm: 5e-4)"),
+            le=Limit(0.05, "m: bubbles larger than this are no foam; give the radius in metres (0.5 mm: 5e-4)"))
+        self.liquid_fraction = c.number(f"{t}.liquid_fraction", self.liquid_fraction, gt=0, le=Limit(
+            0.36, "is random close packing: wetter, the bubbles separate and it is a bubbly liquid, not a foam; "
+                  "a fresh beer head is about 0.2"))
         self.viscosity = c.number(f"{t}.viscosity", self.viscosity, gt=0, le=1000)
         self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, gt=0, le=3)
         self.permeability_constant = c.number(f"{t}.permeability_constant", self.permeability_constant, gt=0,

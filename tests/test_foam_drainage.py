@@ -171,8 +171,8 @@ def fitted_decay_time(tmp_path, n):
 def test_a_head_decays_at_the_set_time_constant(tmp_path):
     # Each film bursts at the end of its exponential lifetime (mean TAU), so a head's volume decays as
     # exp(-t / TAU). Stratified lifetimes remove the sampling noise of the exponential draw. Measured
-    # at 32, 64, 128 cells (cohorts of 395, 1509, 3911 foam particles): -0.77%, +0.38%, +0.07% of
-    # TAU; the error falls with order 1.0 then 2.4 (1.7 overall): burst times are whole steps and
+    # at 32, 64, 128 cells (cohorts of 395, 1509, 3911 foam particles): -0.86%, +0.37%, +0.07% of
+    # TAU; the error falls with order 1.2 then 2.4 (1.8 overall): burst times are whole steps and
     # the cohort samples the sequence unevenly, both shrinking with the cell. Bound: 2% (the issue
     # asks 5%) at each resolution, falling with resolution. A 3% error in the burst rate fails it.
     errors = []

@@ -139,6 +139,10 @@ def test_the_films_liquid_balances_exactly(tmp_path):
     alpha = liquid / (liquid + (sim.particles.numpy("vol0") * sim.particles.numpy("J"))[:n][foam])
     assert (alpha > 0).all() and (alpha <= 0.36 + 1e-6).all()  # drained toward the pool's wet limit
     assert DRAIN_KERNELS <= set(sim.launches)
+    # A resumed run takes the ledger back (its device sums are checkpointed with the stage's values).
+    again = Simulation(layer(tmp_path, Foam(lifetime=0.1)), "cpu")
+    again.load_state(sim.state_arrays())
+    assert again.stage("foam").liquid_budget(again.ctx)["burst"] == b["burst"] > 0
 
 
 # ------------------------------------------------------------------------ Bikerman's decay of a head

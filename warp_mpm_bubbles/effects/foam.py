@@ -223,6 +223,15 @@ class FoamStage(Stage):
         ctx.launch(foam_drainage.gather_foam, p.count,
                    [geo, parts, p.foam_liquid, self._gas_cells, self._liquid_cells, self.liquid_ledger])
 
+    # The liquid ledger is summed on the device, so it is checkpointed from there (not a HostState).
+    def state_arrays(self) -> dict:
+        return {"foam_liquid_ledger": self.liquid_ledger.numpy().copy()}
+
+    def load_state(self, arrays: dict) -> None:
+        if "foam_liquid_ledger" in arrays:
+            self.liquid_ledger.assign(wp.array(arrays["foam_liquid_ledger"], dtype=wp.float64,
+                                               device=self.liquid_ledger.device))
+
     def liquid_budget(self, ctx) -> dict[str, float]:
         """The films' liquid, m^3: lent by the water, held now, drained back, burst; balanced, lent =
         held + drained + burst to float64 round-off."""

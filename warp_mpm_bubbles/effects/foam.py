@@ -177,14 +177,15 @@ class FoamStage(Stage):
         # float64 m^3 of liquid: lent by the water to new films, drained back, lost to bursts (rained
         # back), and through the runs' bottoms in the column solve (foam_drainage's indices).
         self.liquid_ledger = wp.zeros(4, dtype=wp.float64, device=ctx.device)
-        shape = ctx.fields.types.shape
-        self._gas_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
-        self._liquid_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
-        self._k1, self._k2 = foam_drainage.drainage_coefficients(
-            settings.bubble_radius, self._liquid_density(ctx.scene), math.sqrt(sum(a * a for a in ctx.gravity)),
-            settings.viscosity, settings.surface_tension, settings.permeability_constant)
         g = ctx.gravity
         g_mag = math.sqrt(sum(a * a for a in g))
+        if settings.drainage:  # the foam's gas and liquid per cell, float64 (two cell arrays)
+            shape = ctx.fields.types.shape
+            self._gas_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
+            self._liquid_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
+            self._k1, self._k2 = foam_drainage.drainage_coefficients(
+                settings.bubble_radius, self._liquid_density(ctx.scene), g_mag, settings.viscosity,
+                settings.surface_tension, settings.permeability_constant)
         self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
         self._seed = int(ctx.scene.solver.seed) & 0x7FFFFFFF
 

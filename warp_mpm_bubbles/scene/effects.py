@@ -1,7 +1,7 @@
 """The optional effects a scene may ask for, as data: [effects.*] tables, [[emitters]] and
 [[colliders]]. Each is checked like the rest of the scene (one SceneError naming key and fix).
 
-    [effects.foam]               gas reaching open air becomes foam that rides the surface
+    [effects.foam]               gas reaching open air becomes foam that rides the surface and drains
     [effects.subgrid_bubbles]    bubbles under ~2 cells as Lagrangian particles with drag
     [effects.entrainment]        sub-grid bubbles seeded where a splash traps air
     [effects.viscosity]          solver = "auto" | "explicit" | "implicit" (viscosity is on the materials)

@@ -16,7 +16,7 @@ from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.io.usd_output import INSTANCER, read_frames
 
 wp.config.quiet = True
-FOAM_KERNELS = {"advance_foam", "gas_to_foam"}
+FOAM_KERNELS = {"advance_foam", "gas_to_foam", "splat_foam", "drain_columns", "gather_foam"}
 AIR_AND_WATER = lambda: {"water": Material("water"), "air": Material("air", kind="gas")}  # noqa: E731
 
 

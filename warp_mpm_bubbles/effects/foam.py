@@ -17,7 +17,11 @@ the liquid are left out, and its speed does not enter the CFL limit (it moves ki
 scene with foam therefore simulates its liquid and gas bit for bit as the same scene without it.
 
 Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle id): one draw
-per particle, the same on every run and device, independent of launch order.
+per particle, the same on every run and device, independent of launch order; or, with lifetimes =
+"stratified", u from a low-discrepancy (golden-ratio) sequence over the ids, so a head's volume
+follows Bikerman's exp(-t / lifetime) without the sampling noise of a few hundred particles.
+
+The films' liquid drains by the foam-drainage equation (foam_drainage.py, docs/foam.md).
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from ..core.geometry import GridGeometry
 from ..core.kernel_args import FaceField, Particles
 from ..core.grid import PHASE_FOAM, PHASE_GAS, sphere_radius
 from ..core.stage import Stage
+from . import foam_drainage
+from .foam_drainage import BURST, DRAINED, LENT, THROUGH_BOTTOM
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
 from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
@@ -81,9 +87,12 @@ def advance_foam(
     particles: Particles,
     life: wp.array(dtype=float),
     vented_mass: wp.array(dtype=wp.float64),
+    liquid: wp.array(dtype=float),
+    liquid_ledger: wp.array(dtype=wp.float64),
 ):
     """Age every foam particle by dt; burst the expired ones (their gas joins the atmosphere's
-    ledger); move the others by the regime of the liquid fraction around them."""
+    ledger, the liquid of their films the liquid ledger's BURST); move the others by the regime of
+    the liquid fraction around them."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_FOAM:
         return
@@ -92,6 +101,7 @@ def advance_foam(
     if remaining <= 0.0:
         particles.active[p] = 0
         wp.atomic_add(vented_mass, 0, wp.float64(particles.mass[p]))
+        wp.atomic_add(liquid_ledger, BURST, wp.float64(liquid[p]))
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
     inv_dx = 1.0 / geo.dx
@@ -113,10 +123,23 @@ def advance_foam(
     particles.v[p] = wall_stopped(moved, xn, vp, geo.dim)  # a wall stops the motion into it, as in g2p
 
 
+@wp.func
+def weyl_fraction(i: wp.int64):
+    """The fractional part of (i + 1/2) / golden ratio, in float64 (exact enough for any id): a
+    low-discrepancy sequence, so the lifetimes of any run of ids sample the exponential law evenly
+    (its error falls as 1/n instead of 1/sqrt(n))."""
+    x = (wp.float64(i) + wp.float64(0.5)) * wp.float64(0.6180339887498949)
+    return float(x - wp.floor(x))
+
+
 @wp.kernel
 def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeometry, types: wp.array3d(dtype=wp.int32),
-                ceiling: wp.array3d(dtype=wp.int32), particles: Particles, life: wp.array(dtype=float)):
-    """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime."""
+                ceiling: wp.array3d(dtype=wp.int32), particles: Particles, life: wp.array(dtype=float),
+                wet: float, liquid: wp.array(dtype=float), liquid_ledger: wp.array(dtype=wp.float64),
+                stratified: int):
+    """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime and
+    the liquid of its films, wet / (1 - wet) of its gas volume (liquid fraction `wet`), which the
+    liquid ledger books as lent by the water."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS:
         return
@@ -128,7 +151,13 @@ def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeomet
     # A hash of (seed, particle id): no generator state to carry or checkpoint, and the same draw
     # wherever compaction has moved the particle.
     state = wp.rand_init(seed, int(particles.ids[p]))
-    life[p] = -mean_life * wp.log(1.0 - wp.randf(state))  # exponential; randf is in [0, 1)
+    u = wp.randf(state)  # in [0, 1)
+    if stratified != 0:
+        u = weyl_fraction(particles.ids[p])
+    life[p] = -mean_life * wp.log(1.0 - u)  # exponential
+    held = wet / (1.0 - wet) * particles.vol0[p] * particles.J[p]
+    liquid[p] = held
+    wp.atomic_add(liquid_ledger, LENT, wp.float64(held))
 
 
 class FoamStage(Stage):
@@ -143,10 +172,27 @@ class FoamStage(Stage):
         super().__init__(ctx, settings)
         self.material = list(ctx.scene.materials).index(settings.material)
         ctx.particles.add_field("foam_life", float)  # seconds left; checkpointed with the particles
+        # Liquid volume its films hold (its liquid fraction is foam_liquid / (foam_liquid + volume)).
+        ctx.particles.add_field("foam_liquid", float)
+        # float64 m^3 of liquid: lent by the water to new films, drained back, lost to bursts (rained
+        # back), and through the runs' bottoms in the column solve (foam_drainage's indices).
+        self.liquid_ledger = wp.zeros(4, dtype=wp.float64, device=ctx.device)
         g = ctx.gravity
         g_mag = math.sqrt(sum(a * a for a in g))
+        if settings.drainage:  # the foam's gas and liquid per cell, float64 (two cell arrays)
+            shape = ctx.fields.types.shape
+            self._gas_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
+            self._liquid_cells = wp.zeros(shape, dtype=wp.float64, device=ctx.device)
+            self._k1, self._k2 = foam_drainage.drainage_coefficients(
+                settings.bubble_radius, self._liquid_density(ctx.scene), g_mag, settings.viscosity,
+                settings.surface_tension, settings.permeability_constant)
         self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
         self._seed = int(ctx.scene.solver.seed) & 0x7FFFFFFF
+
+    @staticmethod
+    def _liquid_density(scene) -> float:
+        """The films' liquid: the scene's first liquid material."""
+        return next((m.density for m in scene.materials.values() if m.kind == "liquid"), 1000.0)
 
     def output_radii(self, particles: dict):
         """Foam bubbles are real: written with the radius of their own volume."""
@@ -160,11 +206,48 @@ class FoamStage(Stage):
         self.advance(ctx, dt)  # foam made this step has moved with the gas in g2p already
         ctx.launch(gas_to_foam, p.count,
                    [self.material, self.settings.lifetime, self._seed, ctx.geometry, f.types, f.ceiling,
-                    kernel_args.particle_arrays(p), p.foam_life])
+                    kernel_args.particle_arrays(p), p.foam_life, self.settings.liquid_fraction, p.foam_liquid,
+                    self.liquid_ledger, int(self.settings.lifetimes == "stratified")])
+        if self.settings.drainage and ctx.geometry.up_axis >= 0:
+            self.drain(ctx, dt)
+
+    def drain(self, ctx, dt: float):
+        """The foam's liquid drains down its columns (foam_drainage); the water is not changed."""
+        f, p, geo = ctx.fields, ctx.particles, ctx.geometry
+        self._gas_cells.zero_()
+        self._liquid_cells.zero_()
+        parts = kernel_args.particle_arrays(p)
+        ctx.launch(foam_drainage.splat_foam, p.count, [geo, parts, p.foam_liquid, self._gas_cells, self._liquid_cells])
+        ctx.launch(foam_drainage.drain_columns, foam_drainage.column_launch_shape(f.types.shape, geo.up_axis),
+                   [dt, self._k1, self._k2, geo.dx, geo.up_axis, geo.up_sign, f.types, f.liq_volume,
+                    self._gas_cells, self._liquid_cells, self.liquid_ledger])
+        ctx.launch(foam_drainage.gather_foam, p.count,
+                   [geo, parts, p.foam_liquid, self._gas_cells, self._liquid_cells, self.liquid_ledger])
+
+    # The liquid ledger is summed on the device, so it is checkpointed from there (not a HostState).
+    def state_arrays(self) -> dict:
+        return {"foam_liquid_ledger": self.liquid_ledger.numpy().copy()}
+
+    def load_state(self, arrays: dict) -> None:
+        if "foam_liquid_ledger" in arrays:
+            self.liquid_ledger.assign(wp.array(arrays["foam_liquid_ledger"], dtype=wp.float64,
+                                               device=self.liquid_ledger.device))
+
+    def liquid_budget(self, ctx) -> dict[str, float]:
+        """The films' liquid, m^3: lent by the water, held now, drained back, burst; balanced, lent =
+        held + drained + burst to float64 round-off."""
+        n = ctx.particles.count
+        phase, active = ctx.particles.numpy("phase")[:n], ctx.particles.numpy("active")[:n]
+        held = ctx.particles.numpy("foam_liquid")[:n][(phase == PHASE_FOAM) & (active != 0)]
+        ledger = self.liquid_ledger.numpy()
+        return {"lent": float(ledger[LENT]), "held": float(held.astype("float64").sum()),
+                "drained": float(ledger[DRAINED]), "burst": float(ledger[BURST]),
+                "through_bottom": float(ledger[THROUGH_BOTTOM])}
 
     def advance(self, ctx, dt: float):
         f, p = ctx.fields, ctx.particles
         ctx.launch(advance_foam, p.count,
                    [dt, self.settings.rise_speed, self._up, ctx.geometry, kernel_args.face_field(f.vel), f.liq_volume,
-                    f.types, kernel_args.particle_arrays(p), p.foam_life, f.vented_mass])
+                    f.types, kernel_args.particle_arrays(p), p.foam_life, f.vented_mass, p.foam_liquid,
+                    self.liquid_ledger])
         ctx.book_outflow()  # foam blown through an open wall

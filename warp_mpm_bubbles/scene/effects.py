@@ -1,7 +1,7 @@
 """The optional effects a scene may ask for, as data: [effects.*] tables, [[emitters]] and
 [[colliders]]. Each is checked like the rest of the scene (one SceneError naming key and fix).
 
-    [effects.foam]               gas reaching open air becomes foam that rides the surface
+    [effects.foam]               gas reaching open air becomes foam that rides the surface and drains
     [effects.subgrid_bubbles]    bubbles under ~2 cells as Lagrangian particles with drag
     [effects.entrainment]        sub-grid bubbles seeded where a splash traps air
     [effects.viscosity]          solver = "auto" | "explicit" | "implicit" (viscosity is on the materials)
@@ -21,6 +21,7 @@ import numpy as np
 
 from .checks import AXES, _Checker, _did_you_mean, _g, derive, dim_why
 from ..core.stage import registered_settings
+from .limits import Limit
 
 BOUNDARIES = ("no_slip", "free_slip")
 MAX_BUBBLE_RATE = 1.0e5  # bubbles per second from one gas injector
@@ -59,17 +60,41 @@ def _inside_domain(c: _Checker, key, point, scene, what):
 # ------------------------------------------------------------------------------------- effects
 @dataclass
 class Foam:
-    """Gas that reaches open air becomes foam particles riding the surface instead of leaving."""
+    """Gas that reaches open air becomes foam particles riding the surface instead of leaving; the
+    liquid in their films drains by the foam-drainage equation (docs/foam.md)."""
 
     material: str = "foam"  # a kind = "foam" material (its prototype); created with defaults if absent
-    lifetime: float = 2.0  # mean seconds before a foam particle bursts (exponential lifetimes)
+    # Mean seconds before a foam particle bursts (exponential lifetimes): Bikerman's decay time of
+    # the head, whose volume falls as exp(-t / lifetime).
+    lifetime: float = 2.0
+    # "random": each lifetime from a hash of (seed, id); "stratified": from a low-discrepancy
+    # sequence over the ids (the same exponential law, without sampling noise)
+    lifetimes: str = "random"
     rise_speed: float = 0.25  # m/s: foam pushed under the surface floats back up at most this fast
+    drainage: bool = True  # drain the films' liquid by the foam-drainage equation
+    bubble_radius: float = 5.0e-4  # m, of the foam's bubbles (sets the Plateau borders' size)
+    liquid_fraction: float = 0.2  # of new foam (liquid volume / foam volume)
+    viscosity: float = 1.0e-3  # Pa s, of the liquid in the films
+    surface_tension: float = 0.072  # N/m, of the films
+    permeability_constant: float = 50.0  # Verbist's Plateau-border drag coefficient C (rigid walls ~50)
     key: ClassVar[str] = "foam"
 
     def _validate(self, c: _Checker, t, scene):
         self.lifetime = c.number(f"{t}.lifetime", self.lifetime, gt=0)
         self.rise_speed = c.number(f"{t}.rise_speed", self.rise_speed, ge=0)
         _material(c, f"{t}.material", self.material, scene, ("foam",))
+        self.lifetimes = c.choice(f"{t}.lifetimes", self.lifetimes, ("random", "stratified"))
+        self.drainage = c.flag(f"{t}.drainage", self.drainage)
+        self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, ge=Limit(
+            1e-6, "m: smaller bubbles are not a draining foam; give the radius in metres (0.5 mm: 5e-4)"),
+            le=Limit(0.05, "m: bubbles larger than this are no foam; give the radius in metres (0.5 mm: 5e-4)"))
+        self.liquid_fraction = c.number(f"{t}.liquid_fraction", self.liquid_fraction, gt=0, le=Limit(
+            0.36, "is random close packing: wetter, the bubbles separate and it is a bubbly liquid, not a foam; "
+                  "a fresh beer head is about 0.2"))
+        self.viscosity = c.number(f"{t}.viscosity", self.viscosity, gt=0, le=1000)
+        self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, gt=0, le=3)
+        self.permeability_constant = c.number(f"{t}.permeability_constant", self.permeability_constant, gt=0,
+                                              le=1e6)
 
 
 @dataclass

@@ -63,8 +63,10 @@ def kernel_modules(python_modules) -> dict[str, dict]:
     found: dict[str, dict] = {}
     for pm in python_modules:
         for value in vars(pm).values():
-            if isinstance(value, wp.Kernel):
-                found.setdefault(value.func.__module__, {})[value.module.name] = value.module
+            # a table of kernels by dimension (core/transfer_kernels.py's P2G, G2P) counts as its kernels
+            for kernel in value.values() if isinstance(value, dict) else [value]:
+                if isinstance(kernel, wp.Kernel):
+                    found.setdefault(kernel.func.__module__, {})[kernel.module.name] = kernel.module
         registered = wp.get_module(pm.__name__)
         if registered.kernels:
             found.setdefault(pm.__name__, {})[registered.name] = registered
@@ -164,6 +166,11 @@ def test_discovery_finds_every_module_whose_source_defines_kernels(package_build
                               f"only in the source text: {sorted(by_text - found)}")
     for name in ("core.transfer_kernels", "core.pressure", "effects.foam", "physics.tension"):
         assert f"{PACKAGE}.{name}" in found
+    # kernels in modules of their own (module="unique": the transfers, one per dimension, so that a
+    # scene compiles only its own) are compiled with the module that defines them
+    transfers = package_build["modules"][f"{PACKAGE}.core.transfer_kernels"]
+    for kernel in ("p2g_2d", "p2g_3d", "g2p_advect_2d", "g2p_advect_3d"):
+        assert any(name.startswith(kernel + "_") for name in transfers), sorted(transfers)
 
 
 @pytest.mark.parametrize("module", modules_defining_kernels_by_text())

@@ -337,7 +337,7 @@ def splat_node(face_u: wp.array3d(dtype=wp.vec2), face_v: wp.array3d(dtype=wp.ve
 def _p2g_kernel(dim: int):
     NK = 3 if dim == 3 else 1
 
-    @wp.kernel(enable_backward=False, name="p2g")
+    @wp.kernel(enable_backward=False, name=f"p2g_{dim}d", module="unique")
     def p2g_fused(
         geo: GridGeometry,
         particles: Particles,
@@ -466,7 +466,7 @@ def _gather_func(dim: int):
 def _g2p_kernel(dim: int):
     gather_mac = _gather_func(dim)
 
-    @wp.kernel(enable_backward=False, name="g2p_advect")
+    @wp.kernel(enable_backward=False, name=f"g2p_advect_{dim}d", module="unique")
     def g2p_fused(
         first: int,
         dt: float,

@@ -29,11 +29,13 @@ import warp as wp
 
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
 from ..core.cells import cell_type_at, inside, is_solid, unit
+from ..core.lines import Lines, line_end, line_first, make_lines
 from ..core.pressure import SolveInfo
 
 wp.set_module_options({"enable_backward": False})
 
 OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
+RED, BLACK = 0, 1  # the faces' colours, the parity of i + j + k
 
 
 @wp.func
@@ -168,29 +170,45 @@ def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=
 
 
 @wp.kernel
-def cell_stress(mu: wp.array3d(dtype=float), x: wp.array3d(dtype=float), axis: int, inv_dx: float,
+def cell_stress(walk: Lines, mu: wp.array3d(dtype=float), x: wp.array3d(dtype=float), axis: int, inv_dx: float,
                 tau: wp.array3d(dtype=float)):
     """tau_aa = 2 mu du_a/dx_a at cell centres."""
-    i, j, k = wp.tid()
-    c = wp.vec3i(i, j, k)
-    m = mu[i, j, k]
-    t = float(0.0)
-    if m > 0.0:
-        t = 2.0 * m * (value_at(x, c + unit(axis)) - x[i, j, k]) * inv_dx
-    tau[i, j, k] = t
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        c = wp.vec3i(i, j, k)
+        m = mu[i, j, k]
+        t = float(0.0)
+        if m > 0.0:
+            t = 2.0 * m * (value_at(x, c + unit(axis)) - x[i, j, k]) * inv_dx
+        tau[i, j, k] = t
 
 
 @wp.kernel
-def edge_stress(types: wp.array3d(dtype=wp.int32), mu: wp.array3d(dtype=float), xa: wp.array3d(dtype=float),
+def edge_stress(walk: Lines, types: wp.array3d(dtype=wp.int32), mu: wp.array3d(dtype=float), xa: wp.array3d(dtype=float),
                 xb: wp.array3d(dtype=float), a: int, b: int, inv_dx: float, tau: wp.array3d(dtype=float)):
     """tau_ab = mu_e (du_a/dx_b + du_b/dx_a) on the edges of plane (a, b)."""
-    i, j, k = wp.tid()
-    e = wp.vec3i(i, j, k)
-    m = mu[i, j, k]
-    t = float(0.0)
-    if m > 0.0:
-        t = m * (difference(xa, types, e, e - unit(b), a) + difference(xb, types, e, e - unit(a), b)) * inv_dx
-    tau[i, j, k] = t
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        e = wp.vec3i(i, j, k)
+        m = mu[i, j, k]
+        t = float(0.0)
+        if m > 0.0:
+            t = m * (difference(xa, types, e, e - unit(b), a) + difference(xb, types, e, e - unit(a), b)) * inv_dx
+        tau[i, j, k] = t
 
 
 @wp.struct
@@ -216,30 +234,40 @@ def stress_divergence(tau: AroundFace, f: wp.vec3i, a: int, inv_dx: float):
 
 
 @wp.kernel
-def face_operator(mode: int, a: int, inv_dx: float, dt: float, tau: AroundFace, x: wp.array3d(dtype=float),
+def face_operator(walk: Lines, mode: int, a: int, inv_dx: float, dt: float, tau: AroundFace, x: wp.array3d(dtype=float),
                   inv_rho: wp.array3d(dtype=float), out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
     """On the unknown faces (inv_rho > 0), with K x = -div tau(x):
     OPERATOR: out = rho x + dt K x (dots[0] += x . out); RHS: out = -dt K x;
     EXPLICIT: out = x - dt/rho K x. Elsewhere out = 0 (EXPLICIT: x, the value is kept)."""
-    i, j, k = wp.tid()
-    f = wp.vec3i(i, j, k)
-    ir = inv_rho[i, j, k]
-    xf = x[i, j, k]
-    if ir == 0.0:
-        if mode == EXPLICIT:
-            out[i, j, k] = xf
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc0 = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        f = wp.vec3i(i, j, k)
+        ir = inv_rho[i, j, k]
+        xf = x[i, j, k]
+        if ir == 0.0:
+            if mode == EXPLICIT:
+                out[i, j, k] = xf
+            else:
+                out[i, j, k] = 0.0
+            continue
+        kx = -stress_divergence(tau, f, a, inv_dx)
+        if mode == OPERATOR:
+            y = xf / ir + dt * kx
+            out[i, j, k] = y
+            acc0 += wp.float64(xf * y)
+        elif mode == RHS:
+            out[i, j, k] = -dt * kx
         else:
-            out[i, j, k] = 0.0
-        return
-    kx = -stress_divergence(tau, f, a, inv_dx)
-    if mode == OPERATOR:
-        y = xf / ir + dt * kx
-        out[i, j, k] = y
-        wp.atomic_add(dots, 0, wp.float64(xf * y))
-    elif mode == RHS:
-        out[i, j, k] = -dt * kx
-    else:
-        out[i, j, k] = xf - dt * ir * kx
+            out[i, j, k] = xf - dt * ir * kx
+    wp.atomic_add(dots, 0, acc0)
 
 
 @wp.func
@@ -279,57 +307,188 @@ def face_diagonal(a: int, inv_dx2: float, dt: float, types: wp.array3d(dtype=wp.
 
 
 @wp.kernel
-def pcg_start(b: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+def pcg_start(walk: Lines, b: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
               r: wp.array3d(dtype=float), d: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
     """x = 0, r = b, d = M^-1 r; dots[1] += r . r, dots[2] += r . d."""
-    i, j, k = wp.tid()
-    res = b[i, j, k]
-    z = float(0.0)
-    if diag[i, j, k] > 0.0:
-        z = res / diag[i, j, k]
-    x[i, j, k] = 0.0
-    r[i, j, k] = res
-    d[i, j, k] = z
-    wp.atomic_add(dots, 1, wp.float64(res * res))
-    wp.atomic_add(dots, 2, wp.float64(res * z))
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc1 = wp.float64(0.0)
+    acc2 = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        res = b[i, j, k]
+        z = float(0.0)
+        if diag[i, j, k] > 0.0:
+            z = res / diag[i, j, k]
+        x[i, j, k] = 0.0
+        r[i, j, k] = res
+        d[i, j, k] = z
+        acc1 += wp.float64(res * res)
+        acc2 += wp.float64(res * z)
+    wp.atomic_add(dots, 1, acc1)
+    wp.atomic_add(dots, 2, acc2)
 
 
 @wp.kernel
-def pcg_step(alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float), diag: wp.array3d(dtype=float),
+def pcg_step(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float), diag: wp.array3d(dtype=float),
              x: wp.array3d(dtype=float), r: wp.array3d(dtype=float), z: wp.array3d(dtype=float),
              dots: wp.array(dtype=wp.float64)):
     """x += alpha d, r -= alpha A d, z = M^-1 r; dots[1] += r . r, dots[2] += r . z."""
-    i, j, k = wp.tid()
-    x[i, j, k] = alpha * d[i, j, k] + x[i, j, k]
-    res = r[i, j, k] - alpha * Ad[i, j, k]
-    zz = float(0.0)
-    if diag[i, j, k] > 0.0:
-        zz = res / diag[i, j, k]
-    r[i, j, k] = res
-    z[i, j, k] = zz
-    wp.atomic_add(dots, 1, wp.float64(res * res))
-    wp.atomic_add(dots, 2, wp.float64(res * zz))
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc1 = wp.float64(0.0)
+    acc2 = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        x[i, j, k] = alpha * d[i, j, k] + x[i, j, k]
+        res = r[i, j, k] - alpha * Ad[i, j, k]
+        zz = float(0.0)
+        if diag[i, j, k] > 0.0:
+            zz = res / diag[i, j, k]
+        r[i, j, k] = res
+        z[i, j, k] = zz
+        acc1 += wp.float64(res * res)
+        acc2 += wp.float64(res * zz)
+    wp.atomic_add(dots, 1, acc1)
+    wp.atomic_add(dots, 2, acc2)
+
+
+@wp.func
+def colour_start(walk: Lines, first: wp.vec3i, colour: int):
+    """The first index along the line from `first` of a face of `colour` (the parity of i + j + k)."""
+    return first[walk.axis] + (first[0] + first[1] + first[2] + colour) % 2
 
 
 @wp.kernel
-def pcg_direction(z: wp.array3d(dtype=float), beta: float, d: wp.array3d(dtype=float)):
-    i, j, k = wp.tid()
-    d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
+def pcg_update(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float),
+               diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float), r: wp.array3d(dtype=float),
+               z: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+    """x += alpha d, r -= alpha A d; dots[1] += r . r; and the symmetric Gauss-Seidel sweep's first
+    half-sweep: z = r / diag on the red faces (its black neighbours start at 0), 0 off the unknowns."""
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        x[i, j, k] = alpha * d[i, j, k] + x[i, j, k]
+        res = r[i, j, k] - alpha * Ad[i, j, k]
+        r[i, j, k] = res
+        acc += wp.float64(res * res)
+        if (i + j + k) % 2 == RED:
+            zz = float(0.0)
+            if diag[i, j, k] > 0.0:
+                zz = res / diag[i, j, k]
+            z[i, j, k] = zz
+    wp.atomic_add(dots, 1, acc)
+
+
+@wp.func
+def block_neighbours(mu: AroundFace, z: wp.array3d(dtype=float), f: wp.vec3i, a: int):
+    """sum over the faces n that face f couples to in its own component's block, of -A_fn z_n dx^2/dt:
+    along a through the cell between them (2 mu_c), across b through the edge between them (mu_e).
+    The faces that are not unknowns hold z = 0 (a wall's mirror face among them: its weight, 0 in
+    A, does not matter)."""
+    ua = unit(a)
+    s = 2.0 * (value_at(mu.cells, f) * value_at(z, f + ua) + value_at(mu.cells, f - ua) * value_at(z, f - ua))
+    u1 = unit(mu.b1)
+    s += value_at(mu.edges_1, f + u1) * value_at(z, f + u1) + value_at(mu.edges_1, f) * value_at(z, f - u1)
+    if mu.b2 >= 0:
+        u2 = unit(mu.b2)
+        s += value_at(mu.edges_2, f + u2) * value_at(z, f + u2) + value_at(mu.edges_2, f) * value_at(z, f - u2)
+    return s
 
 
 @wp.kernel
-def add_into(delta: wp.array3d(dtype=float), vel: wp.array3d(dtype=float)):
-    i, j, k = wp.tid()
-    vel[i, j, k] = vel[i, j, k] + delta[i, j, k]
+def sgs_sweep(walk: Lines, colour: int, a: int, scale: float, mu: AroundFace, diag: wp.array3d(dtype=float),
+              r: wp.array3d(dtype=float), z: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+    """A Gauss-Seidel half-sweep of z = M^-1 r over the faces of axis a of one colour (scale =
+    dt / dx^2; diag = 0: not an unknown, z = 0); dots[2] += r . z over them."""
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc = wp.float64(0.0)
+    for line_s in range(colour_start(walk, first, colour), line_end(walk, first), 2):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        f = wp.vec3i(i, j, k)
+        dd = diag[i, j, k]
+        zz = float(0.0)
+        if dd > 0.0:
+            res = r[i, j, k]
+            zz = (res + scale * block_neighbours(mu, z, f, a)) / dd
+            acc += wp.float64(res * zz)
+        z[i, j, k] = zz
+    wp.atomic_add(dots, 2, acc)
+
+
+@wp.kernel
+def pcg_direction(walk: Lines, z: wp.array3d(dtype=float), beta: float, d: wp.array3d(dtype=float)):
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        d[i, j, k] = z[i, j, k] + beta * d[i, j, k]
+
+
+@wp.kernel
+def add_into(walk: Lines, delta: wp.array3d(dtype=float), vel: wp.array3d(dtype=float)):
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        vel[i, j, k] = vel[i, j, k] + delta[i, j, k]
 
 
 class ViscousSolver:
-    """The stress operator on one grid: viscosities, explicit step, implicit PCG (Jacobi). Scratch
-    arrays are allocated once; dot products accumulate in float64 (deterministic on the CPU)."""
+    """The stress operator on one grid: viscosities, explicit step, implicit PCG. Scratch arrays are
+    allocated once; dot products accumulate in float64 (deterministic on the CPU).
 
-    def __init__(self, grid, device, launch=None):
+    The preconditioner ("sgs", the default): one symmetric Gauss-Seidel sweep of each component's own
+    block of the matrix (the normal and shear stress coupling a face to the faces of its own axis;
+    the cross terms du_b/dx_a between components are left out, so M is block diagonal and, like A,
+    symmetric positive definite, as PCG needs). Faces are coloured red and black by the parity of
+    i + j + k: every face a face couples to in its block is one index away, so of the other colour,
+    and from z = 0 the half-sweeps red, black, red are forward then backward Gauss-Seidel (the
+    backward black sweep would repeat the forward one). Each half-sweep reads only the other colour,
+    so its result does not depend on the threads' order. "jacobi": the diagonal alone."""
+
+    PRECONDITIONERS = ("sgs", "jacobi")
+
+    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs"):
         """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels."""
-        self.grid, self.device = grid, device
+        if preconditioner not in self.PRECONDITIONERS:
+            raise ValueError(f"preconditioner {preconditioner!r}: use one of {self.PRECONDITIONERS}")
+        self.grid, self.device, self.preconditioner = grid, device, preconditioner
+        self._lines = {}  # array shape -> (Lines, launch dims)
+        self.sweeps = 1
         self._launcher = launch
         self.dim, self.inv_dx = grid.dim, 1.0 / grid.dx
         cells = grid.cells
@@ -344,12 +503,24 @@ class ViscousSolver:
         self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
         self.dots = wp.zeros(3, dtype=wp.float64, device=device)
         self.rate = wp.zeros(1, dtype=float, device=device)
+        # The structs the kernels read (their arrays are allocated once): built once, not per launch.
+        self.mu_around = [self._around(a, self.mu_cell, self.mu_edge) for a in grid.axes]
+        self.tau_around = [self._around(a, self.tau_cell[a], self.tau_edge) for a in grid.axes]
 
     def _launch(self, kernel, shape, inputs):
         if self._launcher is not None:
             self._launcher(kernel, shape, inputs)
         else:
             wp.launch(kernel, shape, inputs=inputs, device=self.device)
+
+    def _walk(self, kernel, shape, inputs):
+        """Launch a kernel that walks an array of `shape` a line per thread (core/lines.py: on the CPU
+        a thread's fixed cost exceeds a face's work), its Lines box first. One launch, so the dot
+        products, summed per line and then in line order, do not depend on threads."""
+        lines = self._lines.get(shape)
+        if lines is None:
+            lines = self._lines[shape] = make_lines((0, 0, 0), shape, self.dim, self.device)
+        self._launch(kernel, lines[1], [lines[0], *inputs])
 
     def _around(self, a: int, cells, edges: dict) -> AroundFace:
         """The quantity on `cells` and on the edges of the planes through axis a (edges: by plane);
@@ -376,24 +547,22 @@ class ViscousSolver:
         inv_dx2 = self.inv_dx * self.inv_dx
         for a in self.grid.axes:
             self._launch(face_diagonal, self.diag[a].shape,
-                         [a, inv_dx2, float(dt), types, inv_rho[a], self._around(a, self.mu_cell, self.mu_edge),
-                          self.diag[a], self.rate])
+                         [a, inv_dx2, float(dt), types, inv_rho[a], self.mu_around[a], self.diag[a], self.rate])
         return float(self.rate.numpy()[0])
 
     def _stresses(self, types, x):
         for a in self.grid.axes:
-            self._launch(cell_stress, self.grid.cells, [self.mu_cell, x[a], a, self.inv_dx, self.tau_cell[a]])
+            self._walk(cell_stress, self.grid.cells, [self.mu_cell, x[a], a, self.inv_dx, self.tau_cell[a]])
         for (a, b), tau in self.tau_edge.items():
-            self._launch(edge_stress, tau.shape, [types, self.mu_edge[(a, b)], x[a], x[b], a, b, self.inv_dx, tau])
+            self._walk(edge_stress, tau.shape, [types, self.mu_edge[(a, b)], x[a], x[b], a, b, self.inv_dx, tau])
 
     def apply(self, mode: int, types, inv_rho, x, dt: float, out) -> float:
         """out = the face operator of `mode` on the face field x; returns x . out (OPERATOR)."""
         self._stresses(types, x)
         self.dots.zero_()
         for a in self.grid.axes:
-            self._launch(face_operator, x[a].shape,
-                         [mode, a, self.inv_dx, float(dt), self._around(a, self.tau_cell[a], self.tau_edge), x[a],
-                          inv_rho[a], out[a], self.dots])
+            self._walk(face_operator, x[a].shape,
+                         [mode, a, self.inv_dx, float(dt), self.tau_around[a], x[a], inv_rho[a], out[a], self.dots])
         return float(self.dots.numpy()[0]) if mode == OPERATOR else 0.0
 
     def explicit(self, types, inv_rho, vel, dt: float):
@@ -405,32 +574,65 @@ class ViscousSolver:
     def _pcg_dots(self, kernel, inputs_of):
         self.dots.zero_()
         for a in self.grid.axes:
-            self._launch(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
+            self._walk(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
         _, rr, rz = self.dots.numpy()
         return float(rr), float(rz)
 
+    def _sweeps(self, dt: float, colours) -> float:
+        """Gauss-Seidel half-sweeps of z = M^-1 r, colour by colour; returns the r . z they add to
+        dots[2] (each face's last value: the half-sweeps that end M^-1 visit every face once)."""
+        scale = float(dt) * self.inv_dx * self.inv_dx
+        for a in self.grid.axes:
+            for colour in colours:
+                self._walk(sgs_sweep, self.z[a].shape, [colour, a, scale, self.mu_around[a], self.diag[a], self.r[a],
+                                                        self.z[a], self.dots])
+        return float(self.dots.numpy()[2])
+
+    def _last_sweeps(self, dt: float) -> float:
+        """After the red half-sweep: black, red, as many times as self.sweeps (symmetric Gauss-Seidel
+        iterations); r . z from the last pair, which sets every face's final value."""
+        for _ in range(self.sweeps - 1):
+            self._sweeps(dt, (BLACK, RED))
+        self.dots.zero_()
+        return self._sweeps(dt, (BLACK, RED))
+
     def implicit(self, types, inv_rho, vel, dt: float, tol: float, max_iter: int) -> SolveInfo:
-        """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by Jacobi
-        PCG on the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter
-        through u*). prepare() must have run with this dt."""
+        """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by PCG on
+        the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter through
+        u*). prepare() must have run with this dt."""
         b, x = self.tmp, self.delta
+        sgs = self.preconditioner == "sgs"
         self.apply(RHS, types, inv_rho, vel, dt, b)
         rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
         b_norm = math.sqrt(rr)
         it, rel = 0, 0.0
         if b_norm > 0.0:
             rel = 1.0
+            if sgs:  # from z = 0: red, black, red
+                for a in self.grid.axes:
+                    self.z[a].zero_()
+                self._sweeps(dt, (RED,))
+                rz = self._last_sweeps(dt)
+                for a in self.grid.axes:
+                    wp.copy(self.d[a], self.z[a])
             while rel > tol and it < max_iter:
                 dAd = self.apply(OPERATOR, types, inv_rho, self.d, dt, self.Ad)
                 if dAd <= 0.0:
                     break  # round-off at convergence
-                rr, rz_new = self._pcg_dots(pcg_step, lambda a: [float(rz / dAd), self.d[a], self.Ad[a], self.diag[a],
-                                                                 x[a], self.r[a], self.z[a]])
+                alpha = float(rz / dAd)
+                # sgs: the update's red z = r / diag is the sweep's first half-sweep; black, red follow.
+                step = (pcg_update if sgs else pcg_step, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a],
+                                                                    self.r[a], self.z[a]])
+                rr, rz_new = self._pcg_dots(*step)
                 it += 1
                 rel = math.sqrt(rr) / b_norm
+                if rel <= tol:
+                    break  # converged: no next direction needed
+                if sgs:
+                    rz_new = self._last_sweeps(dt)
                 for a in self.grid.axes:
-                    self._launch(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
+                    self._walk(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
                 rz = rz_new
             for a in self.grid.axes:
-                self._launch(add_into, vel[a].shape, [x[a], vel[a]])
+                self._walk(add_into, vel[a].shape, [x[a], vel[a]])
         return SolveInfo(it, rel, rel <= tol)

@@ -169,25 +169,15 @@ def edge_viscosity(types: wp.array3d(dtype=wp.int32), mu_cell: wp.array3d(dtype=
     mu[i, j, k] = m_e
 
 
-@wp.kernel
-def cell_stress(walk: Lines, mu: wp.array3d(dtype=float), x: wp.array3d(dtype=float), axis: int, inv_dx: float,
-                tau: wp.array3d(dtype=float)):
-    """tau_aa = 2 mu du_a/dx_a at cell centres."""
-    ti, tj, tk = wp.tid()
-    first = line_first(walk, ti, tj, tk)
-    s0 = first[walk.axis]
-    a1 = int(walk.axis == 1)
-    a2 = int(walk.axis == 2)
-    for line_s in range(s0, line_end(walk, first)):
-        i = first[0]
-        j = first[1] + (line_s - s0) * a1
-        k = first[2] + (line_s - s0) * a2
-        c = wp.vec3i(i, j, k)
-        m = mu[i, j, k]
-        t = float(0.0)
-        if m > 0.0:
-            t = 2.0 * m * (value_at(x, c + unit(axis)) - x[i, j, k]) * inv_dx
-        tau[i, j, k] = t
+@wp.func
+def normal_stress(mu: wp.array3d(dtype=float), x: wp.array3d(dtype=float), c: wp.vec3i, axis: int, inv_dx: float):
+    """tau_aa = 2 mu du_a/dx_a at cell c (0 outside the cells). Computed where a face needs it, twice
+    per cell: cheaper on the CPU than a pass that stores it (a launch's per-cell cost is its price)."""
+    m = value_at(mu, c)
+    t = float(0.0)
+    if m > 0.0:
+        t = 2.0 * m * (value_at(x, c + unit(axis)) - value_at(x, c)) * inv_dx
+    return t
 
 
 @wp.kernel
@@ -224,9 +214,10 @@ class AroundFace:
 
 
 @wp.func
-def stress_divergence(tau: AroundFace, f: wp.vec3i, a: int, inv_dx: float):
-    """(div tau)_a at face f: normal stress from its two cells, shear from its edges along b1 (and b2)."""
-    div = value_at(tau.cells, f) - value_at(tau.cells, f - unit(a))
+def stress_divergence(tau: AroundFace, x: wp.array3d(dtype=float), f: wp.vec3i, a: int, inv_dx: float):
+    """(div tau)_a at face f: normal stress from its two cells (tau.cells holds mu there), shear from
+    its edges along b1 (and b2)."""
+    div = normal_stress(tau.cells, x, f, a, inv_dx) - normal_stress(tau.cells, x, f - unit(a), a, inv_dx)
     div += value_at(tau.edges_1, f + unit(tau.b1)) - value_at(tau.edges_1, f)
     if tau.b2 >= 0:
         div += value_at(tau.edges_2, f + unit(tau.b2)) - value_at(tau.edges_2, f)
@@ -236,7 +227,8 @@ def stress_divergence(tau: AroundFace, f: wp.vec3i, a: int, inv_dx: float):
 @wp.kernel
 def face_operator(walk: Lines, mode: int, a: int, inv_dx: float, dt: float, tau: AroundFace, x: wp.array3d(dtype=float),
                   inv_rho: wp.array3d(dtype=float), out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
-    """On the unknown faces (inv_rho > 0), with K x = -div tau(x):
+    """On the unknown faces (inv_rho > 0), with K x = -div tau(x) (tau: the shear stresses on the
+    edges, and mu at the cells for the normal ones):
     OPERATOR: out = rho x + dt K x (dots[0] += x . out); RHS: out = -dt K x;
     EXPLICIT: out = x - dt/rho K x. Elsewhere out = 0 (EXPLICIT: x, the value is kept)."""
     ti, tj, tk = wp.tid()
@@ -258,7 +250,7 @@ def face_operator(walk: Lines, mode: int, a: int, inv_dx: float, dt: float, tau:
             else:
                 out[i, j, k] = 0.0
             continue
-        kx = -stress_divergence(tau, f, a, inv_dx)
+        kx = -stress_divergence(tau, x, f, a, inv_dx)
         if mode == OPERATOR:
             y = xf / ir + dt * kx
             out[i, j, k] = y
@@ -498,14 +490,14 @@ class ViscousSolver:
         edge_shape = lambda a, b: tuple(n + int(i in (a, b)) for i, n in enumerate(cells))  # noqa: E731
         self.mu_cell = zeros(cells)
         self.mu_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
-        self.tau_cell = [zeros(cells) for _ in grid.axes]
         self.tau_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
         self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
         self.dots = wp.zeros(3, dtype=wp.float64, device=device)
         self.rate = wp.zeros(1, dtype=float, device=device)
         # The structs the kernels read (their arrays are allocated once): built once, not per launch.
         self.mu_around = [self._around(a, self.mu_cell, self.mu_edge) for a in grid.axes]
-        self.tau_around = [self._around(a, self.tau_cell[a], self.tau_edge) for a in grid.axes]
+        # The shear stresses on the edges; the normal ones are computed in place from mu at the cells.
+        self.tau_around = [self._around(a, self.mu_cell, self.tau_edge) for a in grid.axes]
 
     def _launch(self, kernel, shape, inputs):
         if self._launcher is not None:
@@ -551,8 +543,6 @@ class ViscousSolver:
         return float(self.rate.numpy()[0])
 
     def _stresses(self, types, x):
-        for a in self.grid.axes:
-            self._walk(cell_stress, self.grid.cells, [self.mu_cell, x[a], a, self.inv_dx, self.tau_cell[a]])
         for (a, b), tau in self.tau_edge.items():
             self._walk(edge_stress, tau.shape, [types, self.mu_edge[(a, b)], x[a], x[b], a, b, self.inv_dx, tau])
 

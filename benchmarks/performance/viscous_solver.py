@@ -13,8 +13,10 @@ tank: the case the implicit solve was built for. A closed 2D tank W x 2W filled 
 taylor_green: the low-viscosity case. The Taylor-Green cell of tests/test_viscosity.py (nu 1e-3,
     32 cells) at the stress form's explicit limit, where explicit needs no extra steps.
 
-For each: steps, wall time, the implicit solve's PCG iterations, and the state at the end
-(bubble centroid height and rise speed; Taylor-Green amplitude) to show both solvers agree.
+For each: steps, wall time, the viscosity stage's seconds and share of the step (the run's stage
+timer), the implicit solve's PCG iterations, and the state at the end (bubble centroid height and
+rise speed; Taylor-Green amplitude) to show the solvers agree. The implicit solve runs with each
+preconditioner ("sgs", the default, and "jacobi", the diagonal it replaced), side by side.
 Writes benchmarks/results/viscous_solver/<device>[_<label>].{json,md}. A measurement, not a test.
 """
 
@@ -67,9 +69,11 @@ def start_taylor_green(sim):
     sim.particles.v = wp.array(v.astype(np.float32), dtype=wp.vec3, device=sim.device)
 
 
-def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None = None, device="cpu") -> dict:
+def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None = None, device="cpu",
+        preconditioner: str = "sgs") -> dict:
     scene = tank(cells, solver, max_dt) if case == "tank" else taylor_green(cells, solver)
     sim = Simulation(scene, device)
+    sim.stage("viscosity").solver.preconditioner = preconditioner
     if case == "taylor_green":
         start_taylor_green(sim)
     start = time.perf_counter()
@@ -77,8 +81,11 @@ def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None =
     wall = time.perf_counter() - start
     p = sim.particles_numpy()
     stage = sim.stage("viscosity")
-    row = {"case": case, "cells": cells, "solver": solver, "t_end": t_end, "steps": sim.stats.steps,
-           "wall_s": round(wall, 2), "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), **stage.counts,
+    seconds = sim.timer.seconds
+    row = {"case": case, "cells": cells, "solver": solver if solver == "explicit" else f"{solver} ({preconditioner})",
+           "t_end": t_end, "steps": sim.stats.steps, "wall_s": round(wall, 2),
+           "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), "viscosity_s": round(seconds.get("viscosity", 0.0), 2),
+           "viscosity_share": seconds.get("viscosity", 0.0) / sum(seconds.values()), **stage.counts,
            "explicit_limit_s": stage.explicit_limit(sim.ctx)}
     if case == "tank":
         gas = p["phase"] == PHASE_GAS
@@ -86,6 +93,9 @@ def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None =
         row["centroid_y"] = float((p["positions"][gas, 1] * w).sum() / w.sum())
         row["rise_speed"] = float((p["velocities"][gas, 1] * w).sum() / w.sum())
     return row
+
+
+RUNS = [("explicit", "sgs"), ("implicit", "sgs"), ("implicit", "jacobi")]  # (solver, implicit preconditioner)
 
 
 def main(argv=None):
@@ -101,16 +111,17 @@ def main(argv=None):
     wp.config.quiet = True
     rows = []
     for cells in (int(c) for c in args.cells.split(",")):
-        for solver in ("explicit", "implicit"):
-            rows.append(run("tank", cells, solver, args.t_end, args.max_dt, args.device))
+        for solver, pre in RUNS:
+            rows.append(run("tank", cells, solver, args.t_end, args.max_dt, args.device, pre))
             print(rows[-1], flush=True)
-    for solver in () if args.no_taylor_green else ("explicit", "implicit"):
-        rows.append(run("taylor_green", 32, solver, tg_end, device=args.device))
+    for solver, pre in () if args.no_taylor_green else RUNS:
+        rows.append(run("taylor_green", 32, solver, tg_end, device=args.device, preconditioner=pre))
         print(rows[-1], flush=True)
-    lines = ["| case | cells | solver | steps | wall s | ms/step | PCG its (max) | explicit limit s | centroid y | rise speed |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| case | cells | solver | steps | wall s | ms/step | viscosity s (share) | PCG its (max) | explicit limit s | "
+             "centroid y | rise speed |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['case']} | {r['cells']} | {r['solver']} | {r['steps']} | {r['wall_s']} | {r['ms_per_step']} | "
+                     f"{r['viscosity_s']} ({100 * r['viscosity_share']:.1f}%) | "
                      f"{r['pcg_iterations']} ({r['pcg_max_iterations']}) | {r['explicit_limit_s']:.3g} | "
                      f"{r.get('centroid_y', float('nan')):.4f} | {r.get('rise_speed', float('nan')):.4f} |")
     print("\n".join(lines))

@@ -41,7 +41,8 @@ class ViscosityStage(Stage):
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
         # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
         self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
-        self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch)
+        self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch, launch_parts=ctx.launch_parts,
+                                    threads=ctx.launcher.threads)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False

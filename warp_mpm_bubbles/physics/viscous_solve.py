@@ -29,13 +29,16 @@ import warp as wp
 
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
 from ..core.cells import cell_type_at, inside, is_solid, unit
-from ..core.lines import Lines, line_end, line_first, make_lines
+from ..core.lines import Lines, line_end, line_first, make_lines, split_lines
 from ..core.pressure import SolveInfo
 
 wp.set_module_options({"enable_backward": False})
 
 OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
 RED, BLACK = 0, 1  # the faces' colours, the parity of i + j + k
+# The PCG's kernels cost 10-20 ns a face on the CPU against ~30 us to hand a slab to a thread, so
+# an array of this many faces (or edges) runs in slabs on the CPU's threads.
+SPLIT_FACES = 4096
 
 
 @wp.func
@@ -226,7 +229,7 @@ def stress_divergence(tau: AroundFace, x: wp.array3d(dtype=float), f: wp.vec3i, 
 
 @wp.kernel
 def face_operator(walk: Lines, mode: int, a: int, inv_dx: float, dt: float, tau: AroundFace, x: wp.array3d(dtype=float),
-                  inv_rho: wp.array3d(dtype=float), out: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+                  inv_rho: wp.array3d(dtype=float), out: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
     """On the unknown faces (inv_rho > 0), with K x = -div tau(x) (tau: the shear stresses on the
     edges, and mu at the cells for the normal ones):
     OPERATOR: out = rho x + dt K x (dots[0] += x . out); RHS: out = -dt K x;
@@ -259,7 +262,7 @@ def face_operator(walk: Lines, mode: int, a: int, inv_dx: float, dt: float, tau:
             out[i, j, k] = -dt * kx
         else:
             out[i, j, k] = xf - dt * ir * kx
-    wp.atomic_add(dots, 0, acc0)
+    wp.atomic_add(dots, first[0], 0, acc0)
 
 
 @wp.func
@@ -300,7 +303,7 @@ def face_diagonal(a: int, inv_dx2: float, dt: float, types: wp.array3d(dtype=wp.
 
 @wp.kernel
 def pcg_start(walk: Lines, b: wp.array3d(dtype=float), diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
-              r: wp.array3d(dtype=float), d: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+              r: wp.array3d(dtype=float), d: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
     """x = 0, r = b, d = M^-1 r; dots[1] += r . r, dots[2] += r . d."""
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
@@ -322,14 +325,14 @@ def pcg_start(walk: Lines, b: wp.array3d(dtype=float), diag: wp.array3d(dtype=fl
         d[i, j, k] = z
         acc1 += wp.float64(res * res)
         acc2 += wp.float64(res * z)
-    wp.atomic_add(dots, 1, acc1)
-    wp.atomic_add(dots, 2, acc2)
+    wp.atomic_add(dots, first[0], 1, acc1)
+    wp.atomic_add(dots, first[0], 2, acc2)
 
 
 @wp.kernel
 def pcg_step(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float), diag: wp.array3d(dtype=float),
              x: wp.array3d(dtype=float), r: wp.array3d(dtype=float), z: wp.array3d(dtype=float),
-             dots: wp.array(dtype=wp.float64)):
+             dots: wp.array2d(dtype=wp.float64)):
     """x += alpha d, r -= alpha A d, z = M^-1 r; dots[1] += r . r, dots[2] += r . z."""
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
@@ -351,8 +354,8 @@ def pcg_step(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.array
         z[i, j, k] = zz
         acc1 += wp.float64(res * res)
         acc2 += wp.float64(res * zz)
-    wp.atomic_add(dots, 1, acc1)
-    wp.atomic_add(dots, 2, acc2)
+    wp.atomic_add(dots, first[0], 1, acc1)
+    wp.atomic_add(dots, first[0], 2, acc2)
 
 
 @wp.func
@@ -364,7 +367,7 @@ def colour_start(walk: Lines, first: wp.vec3i, colour: int):
 @wp.kernel
 def pcg_update(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.array3d(dtype=float),
                diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float), r: wp.array3d(dtype=float),
-               z: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+               z: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
     """x += alpha d, r -= alpha A d; dots[1] += r . r; and the symmetric Gauss-Seidel sweep's first
     half-sweep: z = r / diag on the red faces (its black neighbours start at 0), 0 off the unknowns."""
     ti, tj, tk = wp.tid()
@@ -386,7 +389,7 @@ def pcg_update(walk: Lines, alpha: float, d: wp.array3d(dtype=float), Ad: wp.arr
             if diag[i, j, k] > 0.0:
                 zz = res / diag[i, j, k]
             z[i, j, k] = zz
-    wp.atomic_add(dots, 1, acc)
+    wp.atomic_add(dots, first[0], 1, acc)
 
 
 @wp.func
@@ -407,7 +410,7 @@ def block_neighbours(mu: AroundFace, z: wp.array3d(dtype=float), f: wp.vec3i, a:
 
 @wp.kernel
 def sgs_sweep(walk: Lines, colour: int, a: int, scale: float, mu: AroundFace, diag: wp.array3d(dtype=float),
-              r: wp.array3d(dtype=float), z: wp.array3d(dtype=float), dots: wp.array(dtype=wp.float64)):
+              r: wp.array3d(dtype=float), z: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
     """A Gauss-Seidel half-sweep of z = M^-1 r over the faces of axis a of one colour (scale =
     dt / dx^2; diag = 0: not an unknown, z = 0); dots[2] += r . z over them."""
     ti, tj, tk = wp.tid()
@@ -428,7 +431,7 @@ def sgs_sweep(walk: Lines, colour: int, a: int, scale: float, mu: AroundFace, di
             zz = (res + scale * block_neighbours(mu, z, f, a)) / dd
             acc += wp.float64(res * zz)
         z[i, j, k] = zz
-    wp.atomic_add(dots, 2, acc)
+    wp.atomic_add(dots, first[0], 2, acc)
 
 
 @wp.kernel
@@ -474,12 +477,15 @@ class ViscousSolver:
 
     PRECONDITIONERS = ("sgs", "jacobi")
 
-    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs"):
-        """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels."""
+    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1):
+        """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels;
+        launch_parts(kernel, [(dims, inputs), ...]): its launch of slabs at once on `threads` CPU threads."""
         if preconditioner not in self.PRECONDITIONERS:
             raise ValueError(f"preconditioner {preconditioner!r}: use one of {self.PRECONDITIONERS}")
         self.grid, self.device, self.preconditioner = grid, device, preconditioner
-        self._lines = {}  # array shape -> (Lines, launch dims)
+        self._lines = {}  # array shape -> [(Lines, launch dims)], one a slab
+        self._launch_parts = launch_parts
+        self.threads = threads if launch_parts is not None and wp.get_device(device).is_cpu else 1
         self.sweeps = 1
         self._launcher = launch
         self.dim, self.inv_dx = grid.dim, 1.0 / grid.dx
@@ -492,7 +498,9 @@ class ViscousSolver:
         self.mu_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
         self.tau_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
         self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
-        self.dots = wp.zeros(3, dtype=wp.float64, device=device)
+        # Dot products: each line adds its sum to its plane's row (a plane along x lies in one slab),
+        # and the host adds the rows in order, so the sums do not depend on the slabs (core/threads.py).
+        self.dots = wp.zeros((max(grid.face_shape(a)[0] for a in grid.axes), 3), dtype=wp.float64, device=device)
         self.rate = wp.zeros(1, dtype=float, device=device)
         # The structs the kernels read (their arrays are allocated once): built once, not per launch.
         self.mu_around = [self._around(a, self.mu_cell, self.mu_edge) for a in grid.axes]
@@ -507,12 +515,17 @@ class ViscousSolver:
 
     def _walk(self, kernel, shape, inputs):
         """Launch a kernel that walks an array of `shape` a line per thread (core/lines.py: on the CPU
-        a thread's fixed cost exceeds a face's work), its Lines box first. One launch, so the dot
-        products, summed per line and then in line order, do not depend on threads."""
-        lines = self._lines.get(shape)
-        if lines is None:
-            lines = self._lines[shape] = make_lines((0, 0, 0), shape, self.dim, self.device)
-        self._launch(kernel, lines[1], [lines[0], *inputs])
+        a thread's fixed cost exceeds a face's work), its Lines box first; an array of SPLIT_FACES
+        or more in slabs along x at once on the CPU's threads (each writes only what it walks)."""
+        slabs = self._lines.get(shape)
+        if slabs is None:
+            box, dims = make_lines((0, 0, 0), shape, self.dim, self.device)
+            split = self.threads > 1 and math.prod(shape) >= SPLIT_FACES
+            slabs = self._lines[shape] = split_lines(box, dims, self.threads) if split else [(box, dims)]
+        if len(slabs) == 1:
+            self._launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+        else:
+            self._launch_parts(kernel, [(dims, [box, *inputs]) for box, dims in slabs])
 
     def _around(self, a: int, cells, edges: dict) -> AroundFace:
         """The quantity on `cells` and on the edges of the planes through axis a (edges: by plane);
@@ -553,7 +566,7 @@ class ViscousSolver:
         for a in self.grid.axes:
             self._walk(face_operator, x[a].shape,
                          [mode, a, self.inv_dx, float(dt), self.tau_around[a], x[a], inv_rho[a], out[a], self.dots])
-        return float(self.dots.numpy()[0]) if mode == OPERATOR else 0.0
+        return float(self._sums()[0]) if mode == OPERATOR else 0.0
 
     def explicit(self, types, inv_rho, vel, dt: float):
         """vel <- vel + dt/rho div tau(vel) on the unknown faces (forward Euler), in place."""
@@ -561,11 +574,15 @@ class ViscousSolver:
         for a in self.grid.axes:
             wp.copy(vel[a], self.tmp[a])
 
+    def _sums(self):
+        """The three dot products: the planes' partial sums added in plane order."""
+        return self.dots.numpy().sum(axis=0)
+
     def _pcg_dots(self, kernel, inputs_of):
         self.dots.zero_()
         for a in self.grid.axes:
             self._walk(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
-        _, rr, rz = self.dots.numpy()
+        _, rr, rz = self._sums()
         return float(rr), float(rz)
 
     def _sweeps(self, dt: float, colours) -> float:
@@ -576,7 +593,7 @@ class ViscousSolver:
             for colour in colours:
                 self._walk(sgs_sweep, self.z[a].shape, [colour, a, scale, self.mu_around[a], self.diag[a], self.r[a],
                                                         self.z[a], self.dots])
-        return float(self.dots.numpy()[2])
+        return float(self._sums()[2])
 
     def _last_sweeps(self, dt: float) -> float:
         """After the red half-sweep: black, red, as many times as self.sweeps (symmetric Gauss-Seidel

@@ -1,7 +1,8 @@
 """Viscosity (docs/viscosity.md): runs when any material has viscosity > 0.
 
     force     the stress div(mu (grad u + grad u^T)) on u*, across the gas-liquid interface
-              (physics/viscous_solve.py): forward Euler, or backward Euler by Jacobi PCG
+              (physics/viscous_solve.py): forward Euler, or backward Euler by PCG with a symmetric
+              Gauss-Seidel preconditioner on each velocity component (physics/viscous_pcg.py)
     dt_limit  "viscous": forward Euler's stability, dt <= 2 / max_f (Gershgorin rate / rho_f), from
               the last step's grid; none when the step is implicit
 

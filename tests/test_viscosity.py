@@ -200,7 +200,7 @@ def test_taylor_green_cell_decays_at_the_viscous_rate(runs, solver):
     assert 0.995 < ratio < 1.025
     assert counts[f"{solver}_steps"] == sim.stats.steps == runs["inviscid"][1].stats.steps
     assert counts["pcg_unconverged"] == 0
-    assert ("pcg_step" in sim.launches) == (solver == "implicit") and sim.launches["edge_stress"] > 0
+    assert ("pcg_start" in sim.launches) == (solver == "implicit") and sim.launches["edge_stress"] > 0
 
 
 def test_inviscid_taylor_green_cell_holds(runs):

@@ -4,21 +4,31 @@
     python -m benchmarks.performance.viscous_solver --cells 40 --t-end 0.05 --no-taylor-green --label 40  # ~2 min
     python -m benchmarks.performance.viscous_solver --cells 20 --t-end 0.1 --max-dt 8e-5 --no-taylor-green --label 20_same_steps  # ~5 min
     python -m benchmarks.performance.viscous_solver --quick      # 10 cells, a few ms of simulated time
+    python -m benchmarks.performance.viscous_solver --hysing 40 --label hysing40   # Hysing case 1 to t = 3 only
+    python -m benchmarks.performance.viscous_solver --hysing 80 --hysing-t-end 0.3 --density-ratio 1000 --label ratio1000_80
 
 tank: the case the implicit solve was built for. A closed 2D tank W x 2W filled with liquid (no-slip top and bottom,
     free-slip sides), an incompressible-gas bubble of radius W/4 at (W/2, W/2): Hysing et al.
     (2009) test case 1 (density ratio 10, Eo 10, Re 35; W = 4.5 cm so that sigma = 0.5 N/m) but
     with the gas's kinematic viscosity 10x the liquid's (mu 0.86 Pa s in both), which makes the
     explicit limit bind. 0.29 s is Hysing's t = 3.
+hysing: benchmarks/validation/convergence.py's Hysing case 1 tank (--hysing CELLS; implicit, auto), the
+    low-Reynolds run where the viscous solve once cost as much as the pressure solve; with
+    --density-ratio 1000 its gas is 1000x lighter than the liquid and 100x less viscous (Hysing's
+    case 2 fluids at case 1's Eo).
 taylor_green: the low-viscosity case. The Taylor-Green cell of tests/test_viscosity.py (nu 1e-3,
     32 cells) at the stress form's explicit limit, where explicit needs no extra steps.
 
-For each: steps, wall time, the implicit solve's PCG iterations, and the state at the end
-(bubble centroid height and rise speed; Taylor-Green amplitude) to show both solvers agree.
+For each: steps, wall time, the viscosity stage's seconds and share of the step (the run's stage
+timer), the implicit solve's PCG iterations, and the state at the end (bubble centroid height and
+rise speed; Taylor-Green amplitude) to show the solvers agree. The implicit solve runs with each
+preconditioner ("sgs", the default, and "jacobi", the diagonal it replaced), side by side.
 Writes benchmarks/results/viscous_solver/<device>[_<label>].{json,md}. A measurement, not a test.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import time
 
@@ -67,9 +77,22 @@ def start_taylor_green(sim):
     sim.particles.v = wp.array(v.astype(np.float32), dtype=wp.vec3, device=sim.device)
 
 
-def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None = None, device="cpu") -> dict:
-    scene = tank(cells, solver, max_dt) if case == "tank" else taylor_green(cells, solver)
+def hysing(cells: int, density_ratio: int) -> Scene:
+    from benchmarks.validation.convergence import CASES, SCALE, scene
+    made = scene(CASES["hysing_2d"], cells, "/tmp")
+    if density_ratio == 1000:
+        materials = dict(made.materials)
+        materials["bubble"] = replace(materials["bubble"], density=1 * SCALE, viscosity=0.1 * SCALE)
+        made = replace(made, materials=materials)
+    return made
+
+
+def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None = None, device="cpu",
+        preconditioner: str = "sgs", density_ratio: int = 10) -> dict:
+    scene = (tank(cells, solver, max_dt) if case == "tank" else taylor_green(cells, solver) if case == "taylor_green"
+             else hysing(cells, density_ratio))
     sim = Simulation(scene, device)
+    sim.stage("viscosity").solver.preconditioner = preconditioner
     if case == "taylor_green":
         start_taylor_green(sim)
     start = time.perf_counter()
@@ -77,15 +100,21 @@ def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None =
     wall = time.perf_counter() - start
     p = sim.particles_numpy()
     stage = sim.stage("viscosity")
-    row = {"case": case, "cells": cells, "solver": solver, "t_end": t_end, "steps": sim.stats.steps,
-           "wall_s": round(wall, 2), "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), **stage.counts,
+    seconds = sim.timer.seconds
+    row = {"case": case, "cells": cells, "solver": solver if solver == "explicit" else f"{solver} ({preconditioner})",
+           "t_end": t_end, "steps": sim.stats.steps, "wall_s": round(wall, 2),
+           "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), "viscosity_s": round(seconds.get("viscosity", 0.0), 2),
+           "viscosity_share": seconds.get("viscosity", 0.0) / sum(seconds.values()), **stage.counts,
            "explicit_limit_s": stage.explicit_limit(sim.ctx)}
-    if case == "tank":
+    if case != "taylor_green":
         gas = p["phase"] == PHASE_GAS
         w = p["volume"][gas]
         row["centroid_y"] = float((p["positions"][gas, 1] * w).sum() / w.sum())
         row["rise_speed"] = float((p["velocities"][gas, 1] * w).sum() / w.sum())
     return row
+
+
+RUNS = [("explicit", "sgs"), ("implicit", "sgs"), ("implicit", "jacobi")]  # (solver, implicit preconditioner)
 
 
 def main(argv=None):
@@ -94,23 +123,34 @@ def main(argv=None):
     ap.add_argument("--t-end", type=float, default=0.29, help="tank: simulated seconds (Hysing's t = 3)")
     ap.add_argument("--max-dt", type=float, default=None, help="tank: the same steps for both solvers")
     ap.add_argument("--no-taylor-green", action="store_true")
+    ap.add_argument("--hysing", default="", help="only the Hysing tank at these cells across (comma-separated)")
+    ap.add_argument("--hysing-t-end", type=float, default=3.0, help="Hysing tank: simulated seconds")
+    ap.add_argument("--density-ratio", type=int, default=10, choices=(10, 1000), help="Hysing tank: liquid/gas")
     args = ap.parse_args(argv)
     tg_end = 0.5
     if args.quick:
         args.cells, args.t_end, tg_end = "10", 0.005, 0.02
     wp.config.quiet = True
     rows = []
-    for cells in (int(c) for c in args.cells.split(",")):
-        for solver in ("explicit", "implicit"):
-            rows.append(run("tank", cells, solver, args.t_end, args.max_dt, args.device))
+    if args.hysing:  # only the Hysing tank, at its default settings, with each preconditioner
+        args.cells, args.no_taylor_green = "", True
+        for cells in (int(c) for c in args.hysing.split(",")):
+            for pre in ("sgs", "jacobi"):
+                rows.append(run(f"hysing_{args.density_ratio}", cells, "auto", args.hysing_t_end, device=args.device,
+                                preconditioner=pre, density_ratio=args.density_ratio))
+                print(rows[-1], flush=True)
+    for cells in (int(c) for c in args.cells.split(",") if c):
+        for solver, pre in RUNS:
+            rows.append(run("tank", cells, solver, args.t_end, args.max_dt, args.device, pre))
             print(rows[-1], flush=True)
-    for solver in () if args.no_taylor_green else ("explicit", "implicit"):
-        rows.append(run("taylor_green", 32, solver, tg_end, device=args.device))
+    for solver, pre in () if args.no_taylor_green else RUNS:
+        rows.append(run("taylor_green", 32, solver, tg_end, device=args.device, preconditioner=pre))
         print(rows[-1], flush=True)
-    lines = ["| case | cells | solver | steps | wall s | ms/step | PCG its (max) | explicit limit s | centroid y | rise speed |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| case | cells | solver | steps | wall s | ms/step | viscosity s (share) | PCG its (max) | explicit limit s | "
+             "centroid y | rise speed |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['case']} | {r['cells']} | {r['solver']} | {r['steps']} | {r['wall_s']} | {r['ms_per_step']} | "
+                     f"{r['viscosity_s']} ({100 * r['viscosity_share']:.1f}%) | "
                      f"{r['pcg_iterations']} ({r['pcg_max_iterations']}) | {r['explicit_limit_s']:.3g} | "
                      f"{r.get('centroid_y', float('nan')):.4f} | {r.get('rise_speed', float('nan')):.4f} |")
     print("\n".join(lines))

@@ -1,7 +1,8 @@
 """Viscosity (docs/viscosity.md): runs when any material has viscosity > 0.
 
     force     the stress div(mu (grad u + grad u^T)) on u*, across the gas-liquid interface
-              (physics/viscous_solve.py): forward Euler, or backward Euler by Jacobi PCG
+              (physics/viscous_solve.py): forward Euler, or backward Euler by PCG with a symmetric
+              Gauss-Seidel preconditioner on each velocity component (physics/viscous_pcg.py)
     dt_limit  "viscous": forward Euler's stability, dt <= 2 / max_f (Gershgorin rate / rho_f), from
               the last step's grid; none when the step is implicit
 
@@ -41,7 +42,8 @@ class ViscosityStage(Stage):
         nu = max((m.viscosity / m.density for m in materials if m.kind != "foam"), default=0.0)
         # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
         self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
-        self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch)
+        self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch, launch_parts=ctx.launch_parts,
+                                    threads=ctx.launcher.threads)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False

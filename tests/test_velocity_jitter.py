@@ -34,3 +34,11 @@ def test_a_wobble_from_bin_to_bin_reads_at_its_size(amplitude):
     rate = np.diff(height(T)) / np.diff(T) + amplitude * sign
     y = np.concatenate([[height(T[0])], height(T[0]) + np.cumsum(rate * np.diff(T))])
     assert vj.jitter(T, y) == pytest.approx(amplitude, rel=0.1)
+
+
+def test_steps_longer_than_a_bin_still_give_a_reading():
+    # --quick's 10 cells take 26 steps of about 0.06 s, longer than a 0.025 s bin: the bins without
+    # a step of their own are left out, not read as NaN.
+    coarse = np.linspace(0.0, vj.T_END, 27)
+    assert np.isfinite(vj.jitter(coarse, height(coarse)))
+    assert np.isfinite(vj.jitter_position_window(coarse, height(coarse)))

@@ -58,6 +58,8 @@ def jitter(t: np.ndarray, y: np.ndarray) -> float:
     for start in np.arange(FROM, T_END - WINDOW - BIN, BIN):
         centre = start + BIN / 2
         inside = (mid >= start) & (mid < start + BIN)
+        if not inside.any():  # a step longer than a bin (coarse grids): no rate of its own
+            continue
         near = np.abs(mid - centre) <= WINDOW
         smooth = np.polyval(np.polyfit(mid[near] - centre, rate[near], 2), 0.0)
         deviations.append(rate[inside].mean() - smooth)
@@ -72,6 +74,8 @@ def jitter_position_window(t: np.ndarray, y: np.ndarray) -> float:
     deviations = []
     for start in np.arange(FROM, T_END - WINDOW - BIN, BIN):
         inside = (mid >= start) & (mid < start + BIN)
+        if not inside.any():
+            continue
         deviations.append(rate[inside].mean() - np.interp(start + BIN / 2, centres, speed))
     return float(np.sqrt(np.mean(np.square(deviations))))
 

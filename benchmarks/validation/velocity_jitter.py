@@ -12,17 +12,18 @@ Hysing-like rise (v = 0.24 tanh(t / 0.2)) reads 0.0011 m/s, 0.5% of the peak, an
 below. A quadratic through the rates is exact at the centre for any cubic speed: the same noise-free
 rise reads 6e-5 m/s (tests/test_velocity_jitter.py), so a jitter of 0.1% of the peak can be read.
 
-    python -m benchmarks.validation.velocity_jitter              # 40 cells across, nine variants: 46 s on 2 CPU cores
-    python -m benchmarks.validation.velocity_jitter --cells 80   # about 6 min
+    python -m benchmarks.validation.velocity_jitter              # 40 cells across, ten variants: 1.5 min on 2 CPU cores
+    python -m benchmarks.validation.velocity_jitter --cells 80   # about 25 min (2-4 min a variant)
+    python -m benchmarks.validation.velocity_jitter --cells 80 --variants "default,volume correction off"
     python -m benchmarks.validation.velocity_jitter --quick      # 10 cells, two variants
 
-Measured 2026-12-05 at c0f4e15, 40 cells: default 0.0046 m/s; volume_relaxation_time 1 ms 0.0051,
-1 s 0.0011; 9 / 16 particles per cell 0.0025 / 0.0017; cg_tolerance 1e-8, max_dt 2 ms,
-liquid_velocity = shared, gas_films = passive within 10% of the default. At 80 cells (--cells 80,
-5 min): default 0.0029; 1 ms 0.0039, 1 s 0.0011; 9 / 16 per cell 0.0012 / 0.0011; liquid_velocity =
-shared 0.0022; the others within 4%. About 0.0011 is a floor several variants reach at both grids.
-The volume correction, answering the particles' sampling noise in each cell's fill, is the main
-source (docs/design.md#limitations).
+Measured 2026-12-07 (this reading), 40 cells: default 0.0043 m/s, 1.8% of the peak rise speed;
+volume_relaxation_time 1 ms 0.0049, 1 s 0.00029 (0.12%); 9 / 16 particles per cell 0.0023 / 0.0013;
+cg_tolerance 1e-8, max_dt 2 ms, liquid_velocity = shared, gas_films = passive within 10% of the
+default; the volume correction off (volume_relaxation_time = 0) 0.00026 (0.11%). At 80 cells
+(--cells 80): default 0.0026 (1.1%); the volume correction off 0.00008 (0.03%). The volume correction, answering the particles'
+sampling noise in each cell's fill, is nearly all of it (docs/design.md#limitations). Measured
+before that reading (2026-12-05, c0f4e15, the position window): 40 cells 0.0046, 80 cells 0.0029.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ VARIANTS = {  # label -> SolverSettings fields changed from the production defau
     "volume_relaxation_time 1 s": {"volume_relaxation_time": 1.0}, "particles_per_cell 9": {"particles_per_cell": 9},
     "particles_per_cell 16": {"particles_per_cell": 16}, "cg_tolerance 1e-8": {"cg_tolerance": 1e-8},
     "max_dt 2 ms": {"max_dt": 2e-3}, "liquid_velocity shared": {"liquid_velocity": "shared"},
-    "gas_films passive": {"gas_films": "passive"},
+    "gas_films passive": {"gas_films": "passive"}, "volume correction off": {"volume_relaxation_time": 0.0},
 }
 T_END, BIN, WINDOW, FROM = 1.5, 0.025, 0.15, 0.3  # s
 
@@ -105,11 +106,24 @@ def run(cells: int, fields: dict, device="cpu") -> dict:
 def main(argv=None) -> int:
     ap = harness.parser(__doc__, quick="10 cells across, the default and one other variant")
     ap.add_argument("--cells", type=int, default=40, help="cells across the tank (at least 10)")
+    ap.add_argument("--variants", default=None,
+                    help="comma-separated labels of the variants to run (default all); the file is then "
+                         "<device>_<cells>_<labels>")
     args = ap.parse_args(argv)
     variants = VARIANTS
     if args.quick:
         args.cells = 10
         variants = {k: VARIANTS[k] for k in ("default", "volume_relaxation_time 1 s")}
+    if args.variants is not None:
+        chosen = [v.strip() for v in args.variants.split(",")]
+        unknown = [v for v in chosen if v not in VARIANTS]
+        if unknown or not chosen:
+            print(f"--variants: unknown label(s) {unknown}; expected comma-separated labels among: "
+                  + ", ".join(VARIANTS), file=sys.stderr)
+            return 2
+        variants = {k: VARIANTS[k] for k in chosen}
+        if args.label is None:
+            args.label = f"{args.cells}_" + "_".join("-".join(k.split()) for k in chosen)
     if args.cells != 40 and args.label is None:  # 40: the default's file
         args.label = str(args.cells)
     wp.config.quiet = True  # older Warp; 1.19 reads log_level
@@ -129,7 +143,7 @@ def main(argv=None) -> int:
     lines = [f"Solver at {out['code']}.", "",
              "| variant | jitter (m/s) | % of peak speed | x default | position window (m/s) | steps |",
              "|---|---:|---:|---:|---:|---:|"]
-    base = rows["default"]["jitter"]
+    base = rows["default"]["jitter"] if "default" in rows else float("nan")  # --variants may leave it out
     lines += [f"| {k} | {r['jitter']:.5f} | {100 * r['jitter_share_of_peak']:.2f} | {r['jitter'] / base:.2f} | "
               f"{r['jitter_position_window']:.5f} | {r['steps']} |" for k, r in rows.items()]
     harness.write_result("velocity_jitter", args, out, "\n".join(lines),

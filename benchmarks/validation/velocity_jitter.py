@@ -21,9 +21,12 @@ Measured 2026-12-07 (this reading), 40 cells: default 0.0043 m/s, 1.8% of the pe
 volume_relaxation_time 1 ms 0.0049, 1 s 0.00029 (0.12%); 9 / 16 particles per cell 0.0023 / 0.0013;
 cg_tolerance 1e-8, max_dt 2 ms, liquid_velocity = shared, gas_films = passive within 10% of the
 default; the volume correction off (volume_relaxation_time = 0) 0.00026 (0.11%). At 80 cells
-(--cells 80): default 0.0026 (1.1%); the volume correction off 0.00008 (0.03%). The volume correction, answering the particles'
-sampling noise in each cell's fill, is nearly all of it (docs/design.md#limitations). Measured
-before that reading (2026-12-05, c0f4e15, the position window): 40 cells 0.0046, 80 cells 0.0029.
+(--cells 80 --variants "default,volume correction off,volume_relaxation_time 1 s,particles_per_cell 16"
+--label 80): default 0.0026 (1.1%); the volume correction off 0.00008 (0.03%), 1 s 0.00011 (0.05%),
+16 particles per cell 0.00014 (0.06%, twice the wall time); the position window read 0.0011 for all
+three, its own bias. The volume correction, answering the particles' sampling noise in each
+cell's fill, is nearly all of it (docs/design.md#limitations). Measured before that reading
+(2026-12-05, c0f4e15, the position window): 40 cells 0.0046, 80 cells 0.0029.
 """
 
 from __future__ import annotations

@@ -108,7 +108,8 @@ def test_each_size_rises_at_its_own_drag_law_terminal_speed(tmp_path, r0):
 def test_the_usd_file_gives_each_bubble_its_own_radius(tmp_path):
     # A run of the splash written to USD: each sub-grid bubble's instance `scales` is the radius of
     # its own volume (as the simulation held it when the frame was written), so a render shows the
-    # drawn sizes; the liquid keeps the output radius. Read back from the file, by particle id.
+    # drawn sizes; the other particles (liquid, resolved gas) keep the output radius. Read back from
+    # the file, by particle id.
     from warp_mpm_bubbles.core.grid import sphere_radius
     from warp_mpm_bubbles.io.runner import run_scene
     from warp_mpm_bubbles.io.usd_output import read_frames

@@ -140,3 +140,26 @@ def test_the_usd_file_gives_each_bubble_its_own_radius(tmp_path):
     print(f"{len(own)} bubble instances, radii {written.min():.3g}..{written.max():.3g} m, sd ln {np.log(written).std():.3f}")
     assert written.max() > 2.0 * written.min() and 0.2 < np.log(written).std() < 0.5
     assert np.all(np.array(liquid) == np.float32(scene.output.particle_radius))
+
+
+def test_a_gas_injector_releases_sub_grid_bubbles_of_the_sizes_it_draws(tmp_path):
+    # An air stone whose bubbles (median 1 mm, radius_spread 0.4) are under the sub-grid radius
+    # (one 3.1 mm cell): each becomes one sub-grid bubble holding its drawn volume (2D: the disk's
+    # through the one-cell slab, pi r^2 dx), so their sizes follow the emitter's own draws, one by
+    # one (seeded by scene seed, emitter and count: effects/emitters.py).
+    from warp_mpm_bubbles.scene.effects import GasInjector
+
+    scene = subgrid_tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()})
+    scene.emitters = [GasInjector("air", (0.05, 0.01), rate=100.0, radius=1.0e-3, radius_spread=0.4, spread=0.02)]
+    sim = Simulation(scene, "cpu")
+    sim.advance_to(0.2)
+    p = sim.particles_numpy()
+    bubbles = p["phase"] == PHASE_SUBGRID
+    order = np.argsort(p["ids"][bubbles])
+    vol0 = sim.particles.vol0.numpy()[: sim.num_particles][bubbles][order].astype(np.float64)
+    n = len(vol0)
+    assert n == 20 and sim.stage("subgrid_bubbles").conversions["gathered"] == 0
+    drawn = np.array([1.0e-3 * math.exp(0.4 * np.random.default_rng([scene.solver.seed, 0, k]).standard_normal())
+                      for k in range(n)])
+    np.testing.assert_allclose(vol0, math.pi * drawn**2 * scene.domain.cell_size, rtol=1e-6)
+    assert drawn.max() > 2.0 * drawn.min()

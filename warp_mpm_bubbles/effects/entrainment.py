@@ -16,6 +16,13 @@ provisional, count + capacity: the unfilled slots are zero, inactive, and every 
 The capacity (checkpointed) doubles after a step that seeds more; that step's excess is appended
 at the read-back, without its first sub-grid move (logged in `overflows`).
 
+Sizes: bubble_radius is the median; with bubble_radius_spread > 0 each seed's radius is log-normal,
+r = bubble_radius exp(spread z), z standard normal cut at +-3 and r at the sub-grid radius (a larger
+bubble would be resolved gas). The host draws z for every slot a step may fill from a generator
+seeded by (scene seed, step): slot q's bubble, particle id next_id + q, always gets the same radius,
+and the host knows every seed's float32 mass without reading the device. With spread 0 every seed
+is the one bubble of bubble_radius (no draws).
+
 The seeds' gas is air the splash took from the atmosphere: once their count is known (settle) their
 mass is booked in its state's gas_mass (kg, checkpointed as "gas_mass_entrained"), which
 Simulation.gas_budget subtracts from its total like the air core/voids.py books as trapped, so the
@@ -110,10 +117,14 @@ def trapped_air(
 
 @wp.struct
 class Bubble:
-    """What every entrained bubble starts with (Simulation.add_particles' values for one at ambient)."""
+    """What every entrained bubble starts with (Simulation.add_particles' values for one at ambient):
+    mass and vol0, or with `sized` 1 each slot's own, mass_of[slot] and vol0_of[slot]."""
 
     mass: float
     vol0: float
+    sized: int
+    mass_of: wp.array(dtype=float)
+    vol0_of: wp.array(dtype=float)
     material: int
     gas_law: int
     gas_gamma: float
@@ -155,6 +166,9 @@ def place_seeds(
             particles.v[p] = u_c
             particles.mass[p] = bubble.mass
             particles.vol0[p] = bubble.vol0
+            if bubble.sized == 1:
+                particles.mass[p] = bubble.mass_of[slot]
+                particles.vol0[p] = bubble.vol0_of[slot]
             particles.J[p] = 1.0
             particles.phase[p] = PHASE_SUBGRID
             particles.active[p] = 1
@@ -209,7 +223,28 @@ class EntrainmentStage(Stage):
             b = self._bubble = Bubble()
             b.mass, b.vol0 = float(np.float32(m.density * volume)), float(np.float32(volume))
             b.material, b.gas_law, b.gas_gamma = index, GAS_LAW_CODES.get(m.eos, 0), float(np.float32(m.gamma))
+            b.sized, self._density = 0, m.density
+            b.mass_of = b.vol0_of = wp.zeros(1, dtype=float, device=ctx.device)
         return self._bubble
+
+    def _draw_sizes(self, ctx, step: int, n: int) -> np.ndarray:
+        """The float32 masses of slots 0..n-1 of this step's seeds (module docstring: Sizes), and their
+        masses and rest volumes on the device for place_seeds; None with no spread."""
+        s = self.settings
+        if s.bubble_radius_spread == 0.0:
+            return None
+        b = self._bubble_values(ctx)
+        z = np.clip(np.random.default_rng([int(ctx.scene.solver.seed), step]).standard_normal(n), -3.0, 3.0)
+        radius = np.minimum(s.bubble_radius * np.exp(s.bubble_radius_spread * z), ctx.scene.effects["subgrid_bubbles"].radius)
+        volume = 4.0 / 3.0 * math.pi * radius**3
+        mass, vol0 = (self._density * volume).astype(np.float32), volume.astype(np.float32)
+        if b.mass_of.shape[0] < n:  # grows like the capacity
+            b.mass_of = wp.zeros(n, dtype=float, device=ctx.device)
+            b.vol0_of = wp.zeros(n, dtype=float, device=ctx.device)
+        b.mass_of[:n].assign(mass)
+        b.vol0_of[:n].assign(vol0)
+        b.sized = 1
+        return mass
 
     def after_g2p(self, ctx, dt: float):
         s, g, f, p = self.settings, ctx.grid, ctx.fields, ctx.particles
@@ -223,9 +258,10 @@ class EntrainmentStage(Stage):
         ctx.launch(seed_total, 1, [self._seeds, self._first, self._total, f.max_speed])
         base, capacity = p.count, self.state.capacity
         p.reserve(base + capacity)
+        masses = self._draw_sizes(ctx, ctx.stats.steps + 1, capacity)
         self._place(ctx, seed, 0, capacity, base)
         p.count = base + capacity  # provisional: the next stages' launches cover the seeds
-        self._pending = (base, capacity, seed)
+        self._pending = (base, capacity, seed, ctx.stats.steps + 1, masses)
 
     def _place(self, ctx, seed, lo, hi, base):
         f, p = ctx.fields, ctx.particles
@@ -247,17 +283,21 @@ class EntrainmentStage(Stage):
 
     def settle(self, ctx, total: int):
         """The read-back gave this step's seed count: the particle count becomes exact."""
-        base, capacity, seed = self._pending
+        base, capacity, seed, step, masses = self._pending
         self._pending = None
         p = ctx.particles
         p.count = base + min(total, capacity)
         if total > capacity:  # rare: the excess joins now; the next steps have room
             p.reserve(base + total)
+            masses = self._draw_sizes(ctx, step, total)  # the same stream: slots below capacity unchanged
             self._place(ctx, seed, capacity, total, base)
             p.count = base + total
             self.state.capacity = 2 * total
             self.overflows += 1
         ctx.ledger.next_id += total
-        # Every seed holds the same float32 mass (place_seeds): the booking matches the particles exactly.
-        self.state.gas_mass += float(total * self._bubble_values(ctx).mass)
+        # The booking is the float32 masses place_seeds wrote, summed exactly: it matches the particles.
+        if masses is None:
+            self.state.gas_mass += float(total * self._bubble_values(ctx).mass)
+        else:
+            self.state.gas_mass += float(masses[:total].astype(np.float64).sum())
         self.seeded += total

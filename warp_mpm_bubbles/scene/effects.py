@@ -121,7 +121,10 @@ class SubgridBubbles:
 class Entrainment:
     """Sub-grid bubbles seeded where a splash traps air (Ihmsen et al. 2012's trapped-air measure)."""
 
-    bubble_radius: float | None = None  # m; None: half the sub-grid threshold
+    bubble_radius: float | None = None  # m, the median; None: half the sub-grid threshold
+    # Standard deviation of ln(radius), as the gas injector's radius_spread; 0: all the same size.
+    # Draws lie within 3 standard deviations and at most the sub-grid radius (a larger one is resolved).
+    bubble_radius_spread: float = 0.0
     # The potential is the mean approach speed of a cell and its neighbours, so on a grid it is a
     # velocity difference across about one cell: a ball plunging at 1.5 m/s into 5 mm cells gives
     # 0.25..0.5 m/s over its splash and 1.2 m/s at most (examples/plunge.toml).
@@ -137,6 +140,7 @@ class Entrainment:
         if self.bubble_radius is None:
             derive(self, "bubble_radius", 0.5 * sub.radius)
         self.bubble_radius = c.number(f"{t}.bubble_radius", self.bubble_radius, gt=0, le=sub.radius)
+        self.bubble_radius_spread = c.number(f"{t}.bubble_radius_spread", self.bubble_radius_spread, ge=0, le=1)
         self.rate = c.number(f"{t}.rate", self.rate, ge=0)
         self.min_speed = c.number(f"{t}.min_speed", self.min_speed, ge=0)
         if self.max_speed is None:

@@ -22,7 +22,7 @@ resumed run decides alike; one read, docs/host_syncs.md):
 - into the liquid: its particles are added and the fluid around makes room, the volume-preserving
   radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's gather uses it within 4 R), liquid and
   resolved gas alike, by as much as the bubble overlaps, everywhere, with the bubble's images
-  across the closed walls (EmitterStage._make_room). Before, the new gas sat on top of the water,
+  across the closed walls (effects/room.py). Before, the new gas sat on top of the water,
   so water and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames).
   What the push carries past an open wall leaves (booked as outflow); past a closed one it is clamped;
 - into a domain the liquid cannot leave (no open wall but the top) with no room left for it (the
@@ -47,16 +47,15 @@ from ..core.simulation import SimulationError
 from ..core.host_state import HostState, saved
 from ..core.stage import Stage
 from ..core.transfer_kernels import CELL_OFFSET, grid_coord, make_stencil
-from ..core.boundary import clamp_to_domain, keep_in_domain, open_wall_exit
+from ..core.boundary import clamp_to_domain
 from ..scene.capacity import MAX_INJECTED_GAUGE, draining_walls, room_and_seeded_liquid
 from ..scene.limits import max_gauge_pressure
 from ..scene.effects import GasInjector, LiquidInflow
 from .nozzle_walls import open_nozzles, walled_nozzles
-from .subgrid import pushed_from
+from .room import NO_LIQUID, in_open_air, make_room_for
 
 wp.set_module_options({"enable_backward": False})
 
-NO_LIQUID = wp.constant(-(1 << 30))  # a column's top liquid cell where it has none
 # A stream particle is not laid into a cell whose liquid already fills more than this of it (rest
 # volume, splatted as p2g does). Measured: a free stream's cells read up to 0.75 (a 2 m/s pour), a
 # submerged or blocked nozzle's 1.1-4.8. At 1.2 the fuzz's blocked nozzles kept the liquid in 0.94-0.95
@@ -67,15 +66,6 @@ CROWDED_FILL = 1.2
 
 class GasRoomError(SimulationError):
     """A bubble due in a domain the liquid cannot leave, which has no room left for it."""
-
-
-@wp.func
-def in_open_air(cell: wp.vec3i, top: int, geo: GridGeometry):
-    """A bubble whose cell is above its column's highest liquid cell (without gravity: no liquid in
-    its 3^dim block) is in the open air (injection_sites measured `top`)."""
-    if geo.up_axis >= 0:
-        return geo.up_sign * cell[geo.up_axis] > top
-    return top == NO_LIQUID
 
 
 @wp.kernel
@@ -154,74 +144,6 @@ def compress_gas(phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int3
     p = wp.tid()
     if active[p] == ACTIVE and (phase[p] == PHASE_GAS or phase[p] == PHASE_SUBGRID):
         J[p] = J[p] * factor
-
-
-@wp.kernel
-def make_room(
-    centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64), reach: wp.array(dtype=wp.float64),
-    owner: wp.array(dtype=wp.int32), cells: wp.array(dtype=wp.vec3i), top: wp.array(dtype=wp.int32),
-    n: int, first_new: int, geo: GridGeometry,
-    phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3),
-):
-    """Liquid and resolved gas (not the new bubbles, from first_new on) make room for each new bubble
-    in turn: r' = (r^d + R^d)^(1/d) within `reach`, in float64 (effects/subgrid.py's push_liquid).
-    A particle pushed past an open wall leaves (or, liquid past an open top, flies). Bubbles in the
-    open air (owner: each push's bubble, in cells and top) push nothing: they vent."""
-    p = wp.tid()
-    if p >= first_new or active[p] != ACTIVE or (phase[p] != PHASE_LIQUID and phase[p] != PHASE_GAS):
-        return
-    dim = geo.dim
-    xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
-    moved = int(0)
-    for b in range(n):
-        if in_open_air(cells[owner[b]], top[owner[b]], geo):
-            continue
-        pushed = pushed_from(xd, centres[b], reach[b], radius_pow[b], dim)
-        if pushed[1] != 0:
-            xd = pushed[0]
-            moved = 1
-    if moved == 0:
-        return
-    xn = wp.vec3(float(xd[0]), float(xd[1]), float(xd[2]))
-    code = open_wall_exit(xn, geo, phase[p])
-    kept = keep_in_domain(xn, wp.vec3(0.0), code, geo)  # (position, velocity): the position
-    active[p] = code
-    x[p] = kept[0]
-
-
-@wp.kernel
-def overlapped_volume(
-    centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64), n: int, first_new: int,
-    dim: int, phase: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3),
-    vol0: wp.array(dtype=float), J: wp.array(dtype=float), held: wp.array(dtype=wp.float64),
-):
-    """held[b]: the volume of the fluid that make_room pushes (liquid at rest volume, resolved gas
-    at V0 J; not the new bubbles, from first_new on) whose particles lie inside bubble b's ball."""
-    p = wp.tid()
-    if p >= first_new or active[p] != ACTIVE or (phase[p] != PHASE_LIQUID and phase[p] != PHASE_GAS):
-        return
-    volume = wp.float64(vol0[p])
-    if phase[p] == PHASE_GAS:
-        volume = wp.float64(vol0[p] * J[p])
-    xd = wp.vec3d(wp.float64(x[p][0]), wp.float64(x[p][1]), wp.float64(x[p][2]))
-    for b in range(n):
-        d = xd - centres[b]
-        if dim == 2:
-            d[2] = wp.float64(0.0)
-        radius = wp.pow(radius_pow[b], wp.float64(1.0) / wp.float64(dim))
-        if wp.dot(d, d) < radius * radius:
-            wp.atomic_add(held, b, volume)
-
-
-@wp.kernel
-def push_what_is_there(held: wp.array(dtype=wp.float64), unit: wp.float64, radius_pow: wp.array(dtype=wp.float64),
-                       source: wp.array(dtype=wp.int32), strength: wp.array(dtype=wp.float64)):
-    """Push i (bubble source[i] or one of its images) pushes aside the volume that bubble's ball
-    overlaps (held), not more: strength[i], its R^d, is that volume's (unit: the volume of a ball of
-    radius 1; 2D: a disk through the slab), at most the bubble's own radius_pow."""
-    i = wp.tid()
-    b = source[i]
-    strength[i] = wp.min(radius_pow[b], held[b] / unit)
 
 
 @wp.kernel
@@ -464,54 +386,9 @@ class EmitterStage(Stage):
             ctx.launch(vent_released, len(owner), [first_new, dev(np.array(owner, np.int32), wp.int32), cells_dev, top,
                                                    ctx.geometry, p.mass, p.active, ctx.fields.vented_mass])
         if pushes and factor == 1.0:  # compressed, there is no room to push into: the gas gave it
-            self._make_room(ctx, pushes, first_new, cells_dev, top)
+            make_room_for(ctx, pushes, first_new, cells_dev, top)
         if factor < 1.0:
             ctx.launch(compress_gas, p.count, [p.phase, p.active, factor, p.J])
-
-    def _make_room(self, ctx, pushes: list[tuple], first_new: int, cells, top):
-        """The fluid makes room for this step's new bubbles (pushes: (centre, R^d, site) each) by
-        make_room's radial push, with an unbounded reach, each bubble's R^d cut to the volume of the
-        fluid its ball overlaps (overlapped_volume, before any push; no read), the bubble pushing
-        along with its mirror images across the closed walls (_images).
-
-        Unbounded: the push keeps the volume of what it moves, but cut off at a reach (it was 4 R)
-        it moves the fluid inside onto the fluid outside, which stays: the bubble's whole volume
-        crowded onto the cut-off's shell. Cut to the overlap: a bubble released in the air beside
-        the water (under a stream, so not in the open air) pushed a column 2-4 cm away by its full
-        volume. Together: 2-5% of the liquid's room lost per bubble there, 1% after. Images: a
-        closed wall stops what is pushed into it, crowding the liquid against it; a bubble and its
-        mirror image push nothing through the mirror (the method of images; a box would need them
-        repeated without end, the first ones take most of it). Over the fuzz's injector scenes
-        (tests/test_run_fuzz.py) the most crowded liquid went from 0.89 to 0.93 of its room; without
-        the images two scenes held liquid and gas 5% above their box."""
-        p, dev = ctx.particles, lambda a, t: wp.array(a, dtype=t, device=ctx.device)  # noqa: E731
-        centres, radius_pow, site = (np.array(col) for col in zip(*pushes))
-        held = wp.zeros(len(pushes), dtype=wp.float64, device=ctx.device)
-        ctx.launch(overlapped_volume, first_new, [dev(centres.astype(np.float64), wp.vec3d),
-                                                  dev(radius_pow.astype(np.float64), wp.float64), len(pushes),
-                                                  first_new, self.dim, p.phase, p.active, p.x, p.vol0, p.J, held])
-        images = [(c, k) for k, centre in enumerate(centres) for c in self._images(ctx, centre)]
-        source = np.array([k for _, k in images], np.int32)
-        strength = wp.zeros(len(images), dtype=wp.float64, device=ctx.device)
-        unit = 4.0 / 3.0 * math.pi if self.dim == 3 else math.pi * self.dx
-        ctx.launch(push_what_is_there, len(images),
-                   [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64), dev(source, wp.int32), strength])
-        ctx.launch(make_room, first_new, [dev(np.array([c for c, _ in images], np.float64), wp.vec3d), strength,
-                                          dev(np.full(len(images), np.inf), wp.float64),
-                                          dev(site[source].astype(np.int32), wp.int32), cells, top, len(images),
-                                          first_new, ctx.geometry, p.phase, p.active, p.x])
-        ctx.book_outflow()  # what the push carried through an open wall
-
-    def _images(self, ctx, centre) -> list[np.ndarray]:
-        """centre and its mirror images across the closed walls: on each axis none, the low wall or
-        the high wall (where closed), every combination (across a corner: a wall's image mirrored
-        across the other)."""
-        g, size = ctx.geometry, ctx.grid.domain_size
-        choices = [[centre[a]] for a in range(3)]
-        for a in range(self.dim):
-            choices[a] += [-centre[a]] if not g.open_lo[a] else []
-            choices[a] += [2.0 * size[a] - centre[a]] if not g.open_hi[a] else []
-        return [np.array([x, y, z]) for x in choices[0] for y in choices[1] for z in choices[2]]
 
     def _sites(self, ctx, cells):
         """The device's measures of the bubbles' sites and the fluid (injection_sites): no read."""

@@ -26,7 +26,7 @@ INSTALL_HINT = ("the blender command needs Blender's Python module (bpy: Python 
                 "environment of its own: from the project's folder, run `python3.11 -m venv .venv-blender` and "
                 "`.venv-blender/bin/pip install -e \".[blender]\"`, then `.venv-blender/bin/warp-mpm-bubbles blender ...`")
 RENDER_SIZE = (960, 540)  # pixels: 16:9
-LENS_MM, SENSOR_MM = 35.0, 36.0  # Blender's default camera; the sensor width governs a landscape image
+LENS_MM, SENSOR_MM = 35.0, 36.0  # Blender's default camera, its sensor's width fitted to the image's width
 
 
 class BlenderUnavailable(RuntimeError):
@@ -147,8 +147,7 @@ def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16
 
 
 def render_frame(scene, frame: int, png, samples: int = 16) -> str:
-    """Render `frame` with Cycles on the CPU at `samples` samples (denoised where Blender has the
-    denoiser) to `png`; returns its path."""
+    """Render `frame` with Cycles on the CPU at `samples` samples to `png`; returns its path."""
     import bpy
 
     scene.render.engine = "CYCLES"

@@ -126,6 +126,7 @@ def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16
     if "FINISHED" not in result:
         raise RuntimeError(f"Blender could not import {usd_path}")
     hidden = _ensure_materials(usd_path)
+    _clear_glasses()
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = fps_settings(info["fps"])
     scene.frame_start, scene.frame_end = info["start"], info["end"]
@@ -133,8 +134,7 @@ def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16
     scene.render.resolution_x, scene.render.resolution_y = RENDER_SIZE
     _add_camera(scene, camera_pose(info["lo"], info["hi"], info["up_axis"], info["meters_per_unit"]))
     _add_sun(scene)
-    if scene.world is None:
-        scene.world = bpy.data.worlds.new("World")
+    _light_sky(scene)
     bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
     materials = {o.name: [s.material.name for s in o.material_slots if s.material] for o in scene.objects
                  if o.type == "MESH"}
@@ -190,6 +190,40 @@ def _ensure_materials(usd_path) -> list:
             obj.hide_render = obj.hide_viewport = True  # its instances go with it
             hidden.append(obj.name)
     return hidden
+
+
+def _clear_glasses():
+    """Glass colliders (prims glass_N under /World/Colliders) get a clear material of their own: the
+    file's grey collider material suits a ball or a stone, but an opaque glass hides what is in it."""
+    import bpy
+
+    glasses = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("glass_")
+               and o.parent is not None and o.parent.name == "Colliders"]
+    if not glasses:
+        return
+    mat = bpy.data.materials.new("Glass")
+    mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    for name, value in (("Base Color", (1.0, 1.0, 1.0, 1.0)), ("Roughness", 0.02), ("IOR", 1.5),
+                        ("Transmission Weight", 1.0)):
+        if name in bsdf.inputs:  # the inputs' names as of Blender 4 and 5
+            bsdf.inputs[name].default_value = value
+    for obj in glasses:
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+
+
+def _light_sky(scene, grey=0.7):
+    """A light grey sky: what clear water and glass refract; against Blender's dark default they render black."""
+    import bpy
+
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("World")
+    scene.world.color = (grey, grey, grey)
+    tree = scene.world.node_tree if getattr(scene.world, "use_nodes", False) else None
+    for node in (tree.nodes if tree else ()):
+        if node.type == "BACKGROUND":
+            node.inputs["Color"].default_value = (grey, grey, grey, 1.0)
 
 
 def _add_camera(scene, pose: dict):

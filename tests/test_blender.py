@@ -117,3 +117,17 @@ def test_example_opens_ready_in_blender(tmp_path, example):
     assert len(mesh.polygons) == len(read_surface(out, 1).indices)  # frame 1's mesh, from its clip layer
     particles = bpy.data.objects["Particles"].evaluated_get(depsgraph).evaluated_geometry()
     assert len(particles.instances_pointcloud().points) == len(read_frames(out)["frames"][1]["positions"])
+
+
+@pytest.mark.slow
+def test_render_writes_the_frame_and_refuses_one_the_file_lacks(tmp_path, capsys):
+    pytest.importorskip("bpy")
+    out = tmp_path / "small.usdc"
+    scene = tmp_path / "small.toml"
+    scene.write_text(SMALL_2D.format(out=out.as_posix(), frames=1))
+    assert main(["run", str(scene), "--quiet"]) == 0
+    assert main(["blender", str(out), "--render", "5"]) == 2
+    assert "--render 5: frame 5 is not in the file: give one from 0 to 1" in capsys.readouterr().err
+    assert main(["blender", str(out), "--render", "1", "--samples", "1"]) == 0
+    png = tmp_path / "small_1.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 1000

@@ -202,7 +202,8 @@ def _clear_glasses():
     if not glasses:
         return
     mat = bpy.data.materials.new("Glass")
-    mat.use_nodes = True
+    if mat.node_tree is None:  # Blender 4 makes a material without nodes; 5 with them
+        mat.use_nodes = True
     bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     for name, value in (("Base Color", (1.0, 1.0, 1.0, 1.0)), ("Roughness", 0.02), ("IOR", 1.5),
                         ("Transmission Weight", 1.0)):

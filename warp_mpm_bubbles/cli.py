@@ -217,22 +217,45 @@ def _main(args) -> int:
 
 def _add_blender_parser(sub):
     blender_p = sub.add_parser("blender", help="open a written animation in Blender (needs bpy) and save a .blend "
-                                              "with fps, frame range, materials, a camera and a light")
+                                              "with fps, frame range, materials, a camera and a light; "
+                                              "--render FRAME also renders one frame to a PNG")
     blender_p.add_argument("stage", help="a .usd/.usdc/.usda written by `run`")
     blender_p.add_argument("--blend", default=None, help="output .blend (default: next to the stage)")
+    blender_p.add_argument("--render", type=frame_number, default=None, metavar="FRAME",
+                           help="also render this frame with Cycles on the CPU to a PNG (a quick look: a few samples)")
+    blender_p.add_argument("--png", default=None, help="the rendered frame's path (default: next to the stage, "
+                                                       "<stem>_<FRAME>.png)")
+    blender_p.add_argument("--samples", type=render_samples, default=16,
+                           help="Cycles samples per pixel for --render, 1 to 4096 (default 16)")
+
+
+def frame_number(text: str) -> int:
+    t = text.strip()
+    if not (t.isascii() and t.isdigit()) or len(t) > 9:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a frame number; give a whole number such as 0 or 12")
+    return int(t)
+
+
+def render_samples(text: str) -> int:
+    t = text.strip()
+    if not (t.isascii() and t.isdigit()) or len(t) > 9 or not 1 <= int(t) <= 4096:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole number of samples from 1 to 4096")
+    return int(t)
 
 
 def _blender(args) -> int:
-    from .io.blender import BlenderUnavailable, open_in_blender
+    from .io.blender import BlenderInputError, BlenderUnavailable, open_in_blender
 
     try:
-        done = open_in_blender(args.stage, args.blend)
-    except (BlenderUnavailable, FileNotFoundError, OSError) as err:
+        done = open_in_blender(args.stage, args.blend, render=args.render, png=args.png, samples=args.samples)
+    except (BlenderUnavailable, BlenderInputError, FileNotFoundError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(f"{done['blend']}: {done['fps']:g} fps, frames {done['frames'][0]}-{done['frames'][1]}, "
           f"{len(done['objects'])} objects" + (f"; hidden (the surface stands for them): {', '.join(done['hidden'])}"
                                                 if done["hidden"] else ""))
+    if "png" in done:
+        print(f"{done['png']}: frame {args.render}, Cycles on the CPU, {args.samples} samples")
     return 0
 
 

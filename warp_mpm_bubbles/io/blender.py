@@ -7,8 +7,14 @@ framing the animation and a sun light, and saves OUT.blend next to the file. Whe
 liquid's surface mesh, the liquid's particle prototype is hidden (render and viewport), so the water
 renders as the mesh while bubbles and foam stay particles; unhide it to see the particles.
 
-Needs Blender as a Python module: `pip install -e ".[blender]"` (bpy; Python 3.11, and it pins
-numpy < 2, so give it its own virtual environment).
+With `render_frame` (the command's `--render FRAME`) it also renders one frame with Cycles on the CPU,
+at a few samples, to a PNG: a look at the set-up, not a final image.
+
+The camera, frame range and fps come from pure functions (camera_pose, fps_settings, frame_in_range)
+so they are tested where bpy is not installed.
+
+Needs Blender as a Python module (bpy), which needs Python 3.11 and numpy < 2, so it lives in a
+virtual environment of its own; INSTALL_HINT gives the commands, the same as the README's.
 """
 
 from __future__ import annotations
@@ -16,11 +22,19 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-INSTALL_HINT = 'the blender command needs Blender\'s Python module: pip install -e ".[blender]" (bpy, Python 3.11)'
+INSTALL_HINT = ("the blender command needs Blender's Python module (bpy: Python 3.11, numpy < 2), in a virtual "
+                "environment of its own: from the project's folder, run `python3.11 -m venv .venv-blender` and "
+                "`.venv-blender/bin/pip install -e \".[blender]\"`, then `.venv-blender/bin/warp-mpm-bubbles blender ...`")
+RENDER_SIZE = (960, 540)  # pixels: 16:9
+LENS_MM, SENSOR_MM = 35.0, 36.0  # Blender's default camera, its sensor's width fitted to the image's width
 
 
 class BlenderUnavailable(RuntimeError):
     pass
+
+
+class BlenderInputError(ValueError):
+    """An argument the file cannot honour (a frame it does not have): refused before Blender starts work."""
 
 
 def stage_timing(usd_path) -> dict:
@@ -50,11 +64,50 @@ def _to_blender(p, up_axis):
     return (x, -z, y) if up_axis == "Y" else (x, y, z)
 
 
-def open_in_blender(usd_path, blend_path=None) -> dict:
-    """Import `usd_path` into an empty Blender scene, set it up and save it; returns what was set."""
+def fps_settings(fps: float) -> tuple:
+    """Blender's (render.fps, render.fps_base) for a rate: fps / fps_base is exact (29.97 too)."""
+    whole = max(1, round(fps))
+    return whole, whole / fps
+
+
+def frame_in_range(frame: int, info: dict) -> str | None:
+    """Why `frame` cannot be rendered from a file with stage_timing `info`, or None if it can."""
+    if not info["start"] <= frame <= info["end"]:
+        return f"frame {frame} is not in the file: give one from {info['start']} to {info['end']}"
+    return None
+
+
+def camera_pose(lo, hi, up_axis="Y", meters_per_unit=1.0, aspect=RENDER_SIZE[0] / RENDER_SIZE[1],
+                lens_mm=LENS_MM, sensor_mm=SENSOR_MM) -> dict:
+    """Where a camera sees the whole box lo..hi (USD coordinates of the file, as stage_timing gives
+    them): in front of it (Blender's -y) and a little above, looking at its centre, just far enough
+    that every corner of the box is inside the picture with a 5% margin. Blender coordinates, m."""
+    a = [v * meters_per_unit for v in _to_blender(lo, up_axis)]
+    b = [v * meters_per_unit for v in _to_blender(hi, up_axis)]
+    lo, hi = [min(p, q) for p, q in zip(a, b)], [max(p, q) for p, q in zip(a, b)]
+    centre = [(p + q) / 2 for p, q in zip(lo, hi)]
+    tilt = 0.35  # looking along +y and this much down: the camera's axes are (1,0,0), `up` and `forward`
+    norm = math.hypot(1.0, tilt)
+    forward, up = (0.0, 1.0 / norm, -tilt / norm), (0.0, tilt / norm, 1.0 / norm)
+    tan_w = 0.95 * sensor_mm / 2 / lens_mm  # horizontal sensor fit: the width spans sensor_mm
+    tan_h = tan_w / aspect
+    distance = 1e-3
+    for corner in ((x, y, z) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])):
+        rel = [c - m for c, m in zip(corner, centre)]
+        depth = sum(r * f for r, f in zip(rel, forward))  # beyond the centre, seen from the camera
+        # A corner at sideways offset s and this depth is in the picture when s <= tan * (distance + depth).
+        distance = max(distance, abs(rel[0]) / tan_w - depth, abs(sum(r * u for r, u in zip(rel, up))) / tan_h - depth)
+    radius = max(math.dist(lo, hi) / 2, 1e-3)
+    location = tuple(c - distance * f for c, f in zip(centre, forward))
+    return {"location": location, "target": tuple(centre), "clip_start": max(distance - radius, 1e-3) / 10,
+            "clip_end": 4 * (distance + radius), "lens_mm": lens_mm, "sensor_mm": sensor_mm}
+
+
+def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16) -> dict:
+    """Import `usd_path` into an empty Blender scene, set it up and save it; with `render` (a frame
+    number) also render that frame to `png`. Returns what was set."""
     try:
         import bpy
-        from mathutils import Vector
     except ImportError as err:
         raise BlenderUnavailable(INSTALL_HINT) from err
     usd_path = Path(usd_path).resolve()
@@ -62,6 +115,8 @@ def open_in_blender(usd_path, blend_path=None) -> dict:
         raise FileNotFoundError(f"{usd_path} does not exist")
     blend_path = Path(blend_path) if blend_path else usd_path.with_suffix(".blend")
     info = stage_timing(usd_path)
+    if render is not None and frame_in_range(render, info):
+        raise BlenderInputError(f"--render {render}: {frame_in_range(render, info)}")
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     # merge_parent_xform off: /World stays an object in every file (it was merged away when it had one child).
@@ -71,28 +126,38 @@ def open_in_blender(usd_path, blend_path=None) -> dict:
     if "FINISHED" not in result:
         raise RuntimeError(f"Blender could not import {usd_path}")
     hidden = _ensure_materials(usd_path)
+    _clear_glasses()
     scene = bpy.context.scene
-    fps = info["fps"]
-    scene.render.fps = max(1, round(fps))
-    scene.render.fps_base = scene.render.fps / fps  # exact for fractional rates (29.97)
+    scene.render.fps, scene.render.fps_base = fps_settings(info["fps"])
     scene.frame_start, scene.frame_end = info["start"], info["end"]
     scene.frame_set(info["start"])
-
-    scale = info["meters_per_unit"]
-    lo = Vector(_to_blender(info["lo"], info["up_axis"])) * scale
-    hi = Vector(_to_blender(info["hi"], info["up_axis"])) * scale
-    lo, hi = Vector(map(min, lo, hi)), Vector(map(max, lo, hi))
-    centre, size = (lo + hi) / 2, max((hi - lo).length, 1e-3)
-    _add_camera(scene, centre, size)
+    scene.render.resolution_x, scene.render.resolution_y = RENDER_SIZE
+    _add_camera(scene, camera_pose(info["lo"], info["hi"], info["up_axis"], info["meters_per_unit"]))
     _add_sun(scene)
-    if scene.world is None:
-        scene.world = bpy.data.worlds.new("World")
+    _light_sky(scene)
     bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
     materials = {o.name: [s.material.name for s in o.material_slots if s.material] for o in scene.objects
                  if o.type == "MESH"}
-    return {"blend": str(blend_path), "fps": scene.render.fps / scene.render.fps_base, "hidden": hidden,
+    done = {"blend": str(blend_path), "fps": scene.render.fps / scene.render.fps_base, "hidden": hidden,
             "frames": (scene.frame_start, scene.frame_end), "objects": sorted(o.name for o in scene.objects),
             "materials": materials}
+    if render is not None:
+        done["png"] = render_frame(scene, render, png or usd_path.with_name(f"{usd_path.stem}_{render}.png"), samples)
+    return done
+
+
+def render_frame(scene, frame: int, png, samples: int = 16) -> str:
+    """Render `frame` with Cycles on the CPU at `samples` samples to `png`; returns its path."""
+    import bpy
+
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(Path(png).resolve())
+    scene.frame_set(frame)
+    bpy.ops.render.render(write_still=True)
+    return scene.render.filepath
 
 
 def _ensure_materials(usd_path) -> list:
@@ -127,17 +192,52 @@ def _ensure_materials(usd_path) -> list:
     return hidden
 
 
-def _add_camera(scene, centre, size):
+def _clear_glasses():
+    """Glass colliders (prims glass_N under /World/Colliders) get a clear material of their own: the
+    file's grey collider material suits a ball or a stone, but an opaque glass hides what is in it."""
     import bpy
 
+    glasses = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("glass_")
+               and o.parent is not None and o.parent.name == "Colliders"]
+    if not glasses:
+        return
+    mat = bpy.data.materials.new("Glass")
+    if mat.node_tree is None:  # Blender 4 makes a material without nodes; 5 with them
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    for name, value in (("Base Color", (1.0, 1.0, 1.0, 1.0)), ("Roughness", 0.02), ("IOR", 1.5),
+                        ("Transmission Weight", 1.0)):
+        if name in bsdf.inputs:  # the inputs' names as of Blender 4 and 5
+            bsdf.inputs[name].default_value = value
+    for obj in glasses:
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+
+
+def _light_sky(scene, grey=0.7):
+    """A light grey sky: what clear water and glass refract; against Blender's dark default they render black."""
+    import bpy
+
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("World")
+    scene.world.color = (grey, grey, grey)
+    tree = scene.world.node_tree if getattr(scene.world, "use_nodes", False) else None
+    for node in (tree.nodes if tree else ()):
+        if node.type == "BACKGROUND":
+            node.inputs["Color"].default_value = (grey, grey, grey, 1.0)
+
+
+def _add_camera(scene, pose: dict):
+    import bpy
+    from mathutils import Vector
+
     data = bpy.data.cameras.new("Camera")
-    data.lens = 35.0
+    data.lens, data.sensor_width, data.sensor_fit = pose["lens_mm"], pose["sensor_mm"], "HORIZONTAL"
+    data.clip_start, data.clip_end = pose["clip_start"], pose["clip_end"]
     cam = bpy.data.objects.new("Camera", data)
     scene.collection.objects.link(cam)
-    # In front of the tank (Blender's -y) and a little above, looking at its centre.
-    cam.location = centre + type(centre)((0.0, -1.6 * size, 0.45 * size))
-    cam.rotation_euler = (centre - cam.location).to_track_quat("-Z", "Y").to_euler()
-    data.clip_end = 20.0 * size
+    cam.location = Vector(pose["location"])
+    cam.rotation_euler = (Vector(pose["target"]) - cam.location).to_track_quat("-Z", "Y").to_euler()
     scene.camera = cam
 
 

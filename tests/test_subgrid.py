@@ -304,3 +304,19 @@ def test_the_output_gives_sub_grid_bubbles_their_own_radius_and_the_summary_thei
     assert output_radii(plain, plain.particles_numpy(), 0.001) is None  # no stage owns a size
     text = summary(RunResult(sim, str(tmp_path / "s.usdc"), 1, 1.0))
     assert re.search(r"gas: .*, 100\.0% in sub-grid bubbles", text), text
+
+
+def test_the_summary_counts_air_a_splash_took_in_among_the_gas(tmp_path, monkeypatch):
+    # A scene with no gas of its own whose splashes entrain bubbles: the conserved total is 0 (the
+    # air came from the atmosphere, booked as entrained), yet all of its gas is in sub-grid bubbles.
+    from warp_mpm_bubbles.io.runner import RunResult, summary
+
+    sim = Simulation(tank(tmp_path, effects={"subgrid_bubbles": SubgridBubbles()}), "cpu")
+    sim.stage("subgrid_bubbles").add_bubbles(sim.ctx, np.array([[0.03, 0.02]]), np.array([5.0e-4]), np.zeros((1, 2)), AIR)
+    held = sim.gas_budget()["subgrid"]
+    budget = dict(sim.gas_budget(), entrained=0.75 * held, vented=0.5 * held)
+    budget["total"] = held + budget["vented"] - budget["entrained"]  # as gas_budget() books it
+    monkeypatch.setattr(sim, "gas_budget", lambda: budget)
+    text = summary(RunResult(sim, str(tmp_path / "s.usdc"), 1, 1.0))
+    assert re.search(r"gas: 33\.3% of its mass vented to the atmosphere, 66\.7% in sub-grid bubbles", text), text
+

@@ -277,7 +277,10 @@ def summary(result: RunResult) -> str:
                  + (f", {st.cg_unconverged} solves hit the iteration cap" if st.cg_unconverged else ""))
     if sim.has_gas:
         b = sim.gas_budget()
-        share = lambda key: 100 * b[key] / b["total"] if b["total"] > 0 else 0.0  # noqa: E731
+        # shares of all the gas the run has had: the conserved total (seeded and injected) and the
+        # air it took from the atmosphere (trapped pockets, entrained bubbles), which the total leaves out
+        had = b["total"] + b["trapped"] + b["entrained"]
+        share = lambda key: 100 * b[key] / had if had > 0 else 0.0  # noqa: E731
         held = "".join(f", {share(s.gas_held[0]):.1f}% {s.gas_held[1]}" for s in sim.stages if s.gas_held)
         gone = f", {share('left'):.1f}% out through open walls" if sim.open_walls else ""
         lines.append(f"  gas: {share('vented'):.1f}% of its mass vented to the atmosphere{gone}{held}, "

@@ -15,10 +15,11 @@ from warp_mpm_bubbles.core.simulation import Simulation
 
 wp.config.quiet = True
 
-# What every liquid scene launches: the transfers, the grid stages, the pressure system.
-CORE_KERNELS = {"p2g", "momentum_to_velocity", "classify_cells", "zero_solid_faces", "face_inverse_density",
+# What every liquid scene launches: the transfers (2D: these scenes' dimension), the grid phases,
+# the pressure system.
+CORE_KERNELS = {"p2g_2d", "momentum_to_velocity", "classify_cells", "zero_solid_faces", "face_inverse_density",
                 "pressure_diagonal_and_rhs", "subtract_pressure_gradient", "extrapolate_velocity",
-                "enforce_walls", "g2p_advect", "split_pairs",
+                "enforce_walls", "g2p_advect_2d", "split_pairs",
                 "covered_top", "count_covered_empty", "clear_holes"}  # core/voids.py: holes in the liquid
 CORE_STAGES = ["p2g", "grid", "pressure", "extend", "g2p"]
 # core/voids.py's search, launched only on steps where some EMPTY cell has fluid or solid above it

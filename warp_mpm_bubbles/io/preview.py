@@ -114,7 +114,9 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
         if liquid is not None and not flat:  # 3D: the shaded mesh seen from above at an angle
             box = np.stack([all_pos.min(axis=0), all_pos.max(axis=0)])
             corners = np.array([[box[(i >> a) & 1, a] for a in range(3)] for i in range(8)])
-            draw_oblique(ax, stage_path, f, p["positions"][p["proto_indices"] != liquid], oblique_view(axes), corners)
+            view = oblique_view(axes)
+            draw_oblique(ax, stage_path, f, p["positions"][p["proto_indices"] != liquid], view, corners)
+            _frame_on(ax, _draw_colliders_oblique(ax, stage_path, f, view))
             ax.set_title(f"frame {f}  t = {f / data['fps']:.3f} s", fontsize=9)
             continue
         if liquid is not None and draw_surface(ax, stage_path, f, axes, flat=flat):
@@ -138,10 +140,7 @@ def render_preview(stage_path, png_path, frames=None, axes=(0, 1), title=None, d
         ax.set_aspect("equal")
         ax.set_title(f"frame {f}  t = {f / data['fps']:.3f} s", fontsize=9)
         ax.tick_params(labelsize=7)
-    if sc is not None:
-        fig.colorbar(sc, ax=axs[0].tolist(), label="speed (m/s)", shrink=0.8)
-    if title:
-        fig.suptitle(title, fontsize=10)
+    _fit_around_panels(fig, axs[0], sc, title)
     try:
         fig.savefig(png_path, dpi=dpi, bbox_inches="tight")
     except OSError as err:
@@ -191,3 +190,99 @@ def _outline(points):
     """The first half of an extruded outline's points is its front cap, in order."""
     half = points[: len(points) // 2]
     return half[:, 0], half[:, 1]
+
+
+def _fit_around_panels(fig, axs, sc, title):
+    """Put the colour bar and the title against the panels as drawn. An equal-aspect panel is
+    shrunk to fit its slot, so a colour bar or title placed by the figure's size would stand
+    away from the panels, leaving a blank band that bbox_inches="tight" cannot crop."""
+    fig.canvas.draw()  # applies the equal aspect: the panels' real boxes
+    boxes = [ax.get_position() for ax in axs]
+    y0, y1, x1 = min(b.y0 for b in boxes), max(b.y1 for b in boxes), max(b.x1 for b in boxes)
+    if sc is not None:
+        cax = fig.add_axes((x1 + 0.015, y0, 0.012, y1 - y0))
+        fig.colorbar(sc, cax=cax, label="speed (m/s)")
+    if title:
+        to_fig = fig.transFigure.inverted()
+        top = max(to_fig.transform(ax.get_tightbbox().corners()).max(axis=0)[1] for ax in axs)
+        fig.suptitle(title, fontsize=10, y=top + 0.01, va="bottom")
+
+
+def _draw_colliders_oblique(ax, stage_path, frame, view) -> list:
+    """Draw the colliders under /World/Colliders as seen from the oblique `view` of a 3D run: each
+    one's silhouette (the convex hull of its projected surface points), grey, over the water as
+    in the side view. Returns the patches, one per collider."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(stage_path))
+    root = stage.GetPrimAtPath("/World/Colliders")
+    drawn = []
+    for prim in root.GetChildren() if root else []:
+        pts = _collider_points(prim, frame)
+        if pts is None:
+            continue
+        q = pts @ view[:2].T
+        drawn.append(ax.add_patch(_patches().Polygon(_hull(q), closed=True, facecolor="0.6", alpha=0.6,
+                                                     edgecolor="0.35", linewidth=0.6, zorder=3)))
+    return drawn
+
+
+def _collider_points(prim, frame):
+    """Points on a collider prim's surface in world space (enough to outline it), None if unknown."""
+    from pxr import UsdGeom
+
+    if prim.IsA(UsdGeom.Mesh):  # the glass
+        local = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(frame), dtype=float)
+    elif prim.IsA(UsdGeom.Cube):
+        half = UsdGeom.Cube(prim).GetSizeAttr().Get(frame) / 2
+        local = np.array([[half * (1 if (i >> a) & 1 else -1) for a in range(3)] for i in range(8)], dtype=float)
+    elif prim.IsA(UsdGeom.Sphere):
+        r = UsdGeom.Sphere(prim).GetRadiusAttr().Get(frame)
+        k = np.arange(400) + 0.5  # a Fibonacci sphere: its hull is the disk seen from any side
+        z, phi = 1 - 2 * k / len(k), np.pi * (1 + 5**0.5) * k
+        local = r * np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
+    elif prim.IsA(UsdGeom.Cylinder):
+        cyl = UsdGeom.Cylinder(prim)
+        r, h, axis = cyl.GetRadiusAttr().Get(frame), cyl.GetHeightAttr().Get(frame), cyl.GetAxisAttr().Get()
+        t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+        ring = np.column_stack([r * np.cos(t), r * np.sin(t)])
+        a = "XYZ".index(axis)
+        local = np.zeros((128, 3))
+        local[:, [i for i in range(3) if i != a]] = np.vstack([ring, ring])
+        local[:, a] = np.repeat([-h / 2, h / 2], 64)
+    else:
+        return None
+    m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(frame))  # row vectors: p' = p M
+    return local @ m[:3, :3] + m[3, :3]
+
+
+def _hull(q):
+    """Convex hull of 2D points, counter-clockwise (Andrew's monotone chain)."""
+    q = np.unique(np.round(q, 12), axis=0)
+    if len(q) < 3:
+        return q
+
+    def half(points):
+        out = []
+        for p in points:
+            while len(out) >= 2 and _turn(out[-2], out[-1], p) <= 0:
+                out.pop()
+            out.append(p)
+        return out[:-1]
+
+    return np.array(half(q) + half(q[::-1]))
+
+
+def _turn(o, a, b):
+    """> 0 where o -> a -> b turns counter-clockwise."""
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _frame_on(ax, patches):
+    """Widen the panel's limits to take in the drawn colliders."""
+    for patch in patches:
+        xy = patch.get_xy()
+        x0, x1 = ax.get_xlim()
+        y0, y1 = ax.get_ylim()
+        ax.set_xlim(min(x0, xy[:, 0].min()), max(x1, xy[:, 0].max()))
+        ax.set_ylim(min(y0, xy[:, 1].min()), max(y1, xy[:, 1].max()))

@@ -21,7 +21,7 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
-EXAMPLES = sorted(p.stem for p in (ROOT / "examples").glob("*.py"))
+EXAMPLES = sorted(p.stem for p in (ROOT / "examples").glob("*.py") if p.with_suffix(".toml").exists())  # a scene each
 
 
 def test_without_bpy_the_command_says_how_to_install_it(tmp_path, capsys, monkeypatch):

@@ -3,9 +3,10 @@
 Imports the USD with Blender's own importer (value clips, instancer, materials), then sets what the
 importer leaves alone: the scene's fps from the stage's timeCodesPerSecond (Blender stays at 24
 otherwise: a 60 fps file plays at 0.4x), the frame range from its start/end time codes, a camera
-framing the animation and a sun light, and saves OUT.blend next to the file. Where the file has the
+framing the animation, a sun light and a matte floor, and saves OUT.blend next to the file. Where the file has the
 liquid's surface mesh, the liquid's particle prototype is hidden (render and viewport), so the water
-renders as the mesh while bubbles and foam stay particles; unhide it to see the particles.
+renders as the mesh, given a clear, refracting material, while bubbles and foam stay particles;
+unhide it to see the particles.
 
 With `render_frame` (the command's `--render FRAME`) it also renders one frame with Cycles on the CPU,
 at a few samples, to a PNG: a look at the set-up, not a final image.
@@ -86,7 +87,9 @@ def camera_pose(lo, hi, up_axis="Y", meters_per_unit=1.0, aspect=RENDER_SIZE[0] 
     b = [v * meters_per_unit for v in _to_blender(hi, up_axis)]
     lo, hi = [min(p, q) for p, q in zip(a, b)], [max(p, q) for p, q in zip(a, b)]
     centre = [(p + q) / 2 for p, q in zip(lo, hi)]
-    tilt = 0.35  # looking along +y and this much down: the camera's axes are (1,0,0), `up` and `forward`
+    # Looking along +y and this much down (31 degrees: over a glass's rim, onto the water's surface);
+    # the camera's axes are (1,0,0), `up` and `forward`.
+    tilt = 0.6
     norm = math.hypot(1.0, tilt)
     forward, up = (0.0, 1.0 / norm, -tilt / norm), (0.0, tilt / norm, 1.0 / norm)
     tan_w = 0.95 * sensor_mm / 2 / lens_mm  # horizontal sensor fit: the width spans sensor_mm
@@ -127,6 +130,7 @@ def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16
         raise RuntimeError(f"Blender could not import {usd_path}")
     hidden = _ensure_materials(usd_path)
     _clear_glasses()
+    _clear_water(hidden)
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = fps_settings(info["fps"])
     scene.frame_start, scene.frame_end = info["start"], info["end"]
@@ -135,6 +139,7 @@ def open_in_blender(usd_path, blend_path=None, render=None, png=None, samples=16
     _add_camera(scene, camera_pose(info["lo"], info["hi"], info["up_axis"], info["meters_per_unit"]))
     _add_sun(scene)
     _light_sky(scene)
+    _add_floor(scene, info)
     bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
     materials = {o.name: [s.material.name for s in o.material_slots if s.material] for o in scene.objects
                  if o.type == "MESH"}
@@ -202,16 +207,36 @@ def _clear_glasses():
     if not glasses:
         return
     mat = bpy.data.materials.new("Glass")
-    if mat.node_tree is None:  # Blender 4 makes a material without nodes; 5 with them
-        mat.use_nodes = True
-    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
-    for name, value in (("Base Color", (1.0, 1.0, 1.0, 1.0)), ("Roughness", 0.02), ("IOR", 1.5),
-                        ("Transmission Weight", 1.0)):
-        if name in bsdf.inputs:  # the inputs' names as of Blender 4 and 5
-            bsdf.inputs[name].default_value = value
+    _make_transmissive(mat, ior=1.5)
     for obj in glasses:
         obj.data.materials.clear()
         obj.data.materials.append(mat)
+
+
+def _clear_water(hidden: list):
+    """Where the file has a surface mesh (its particles then hidden), the liquid's material becomes clear
+    and refracting. UsdPreviewSurface has no transmission: Blender reads the look's low opacity as alpha,
+    and a surface drawn at 10% alpha renders as a dim, dark body instead of water."""
+    import bpy
+
+    for name in hidden:
+        obj = bpy.data.objects.get(name)
+        for slot in (obj.material_slots if obj is not None else ()):
+            if slot.material is not None:
+                _make_transmissive(slot.material, ior=1.33)
+
+
+def _make_transmissive(mat, ior: float):
+    """A Principled BSDF that lets light through (glass, clear water): no alpha, full transmission."""
+    if mat.node_tree is None:  # Blender 4 makes a material without nodes; 5 with them
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    for link in [link for link in mat.node_tree.links if link.to_node == bsdf and link.to_socket.name == "Alpha"]:
+        mat.node_tree.links.remove(link)
+    for name, value in (("Base Color", (1.0, 1.0, 1.0, 1.0)), ("Roughness", 0.02), ("IOR", ior),
+                        ("Alpha", 1.0), ("Transmission Weight", 1.0)):
+        if name in bsdf.inputs:  # the inputs' names as of Blender 4 and 5
+            bsdf.inputs[name].default_value = value
 
 
 def _light_sky(scene, grey=0.7):
@@ -225,6 +250,28 @@ def _light_sky(scene, grey=0.7):
     for node in (tree.nodes if tree else ()):
         if node.type == "BACKGROUND":
             node.inputs["Color"].default_value = (grey, grey, grey, 1.0)
+
+
+def _add_floor(scene, info: dict, grey=0.5):
+    """A matte floor under the domain, twenty times its size: the shadows ground the scene, and clear
+    water and glass have something to refract besides a uniform sky."""
+    import bpy
+
+    a = [v * info["meters_per_unit"] for v in _to_blender(info["lo"], info["up_axis"])]
+    b = [v * info["meters_per_unit"] for v in _to_blender(info["hi"], info["up_axis"])]
+    half = 10 * max(abs(p - q) for p, q in zip(a, b))
+    cx, cy, z = (a[0] + b[0]) / 2, (a[1] + b[1]) / 2, min(a[2], b[2]) - 1e-4  # just under the floor wall
+    mesh = bpy.data.meshes.new("Floor")
+    mesh.from_pydata([(cx - half, cy - half, z), (cx + half, cy - half, z), (cx + half, cy + half, z),
+                      (cx - half, cy + half, z)], [], [(0, 1, 2, 3)])
+    mat = bpy.data.materials.new("Floor")
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Base Color"].default_value = (grey, grey, grey, 1.0)
+    bsdf.inputs["Roughness"].default_value = 0.8
+    mesh.materials.append(mat)
+    scene.collection.objects.link(bpy.data.objects.new("Floor", mesh))
 
 
 def _add_camera(scene, pose: dict):

@@ -3,6 +3,8 @@ and the sub-grid bubbles (a phase of the gas, given a prototype and material of 
 their gas), each instance scaled by its own radius, so a render shows bubbles and foam of many sizes.
 On Warp's CPU device."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import warp as wp
@@ -17,6 +19,7 @@ from warp_mpm_bubbles.io.usd_output import INSTANCER, StageWriter, read_frames
 from warp_mpm_bubbles.scene.effects import Entrainment, Foam, GasInjector, SubgridBubbles
 
 wp.config.quiet = True
+ROOT = Path(__file__).resolve().parents[1]
 KINDS = {"water": PHASE_LIQUID, "air": PHASE_GAS, "foam": PHASE_FOAM, "air_subgrid": PHASE_SUBGRID}
 
 
@@ -106,3 +109,24 @@ def test_the_writer_needs_the_phases_for_prototypes_of_a_phase(tmp_path):
     assert read_frames(tmp_path / "w.usdc")["frames"][0]["proto_indices"].tolist() == [0, 1, 2]
     with pytest.raises(ValueError, match="prototype_of"):
         StageWriter(tmp_path / "v.usdc", fps=30, materials=materials, particle_radius=1e-3, prototype_of=[(2, 3)])
+
+
+@pytest.mark.parametrize("example", ["beer_3d", "champagne_3d"])
+def test_the_beer_and_champagne_examples_write_foam_and_bubbles_of_several_sizes(tmp_path, example):
+    """Each runs 8 frames at the preview quality (its bubbles reach the surface within them): its foam
+    and its sub-grid bubbles are written as their own prototypes, in several sizes each."""
+    from warp_mpm_bubbles.cli import main
+
+    out = tmp_path / f"{example}.usdc"
+    scene = ROOT / "examples" / f"{example}.toml"
+    assert main(["run", str(scene), "--device", "cpu", "--num-frames", "8", "--quality", "preview",
+                 "--stage-path", str(out), "--quiet"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    names = [t.name for t in UsdGeom.PointInstancer.Get(stage, INSTANCER).GetPrototypesRel().GetTargets()]
+    gas = names[1]
+    assert names == [names[0], gas, "foam", f"{gas}_subgrid"]
+    last = read_frames(out)["frames"][8]
+    for k in (2, 3):  # foam, sub-grid bubbles
+        s = last["scales"][last["proto_indices"] == k, 0]
+        print(f"{example} {names[k]}: {len(s)} instances, {len(np.unique(s))} sizes, {s.min():.3g}..{s.max():.3g} m")
+        assert len(np.unique(s)) >= 5 and s.max() > 1.5 * s.min()

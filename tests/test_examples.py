@@ -62,8 +62,11 @@ def check_output(scene_path, out: pathlib.Path):
     assert sorted(data["frames"]) == list(range(FRAMES + 1))
     stage = Usd.Stage.Open(str(out))
     inst = UsdGeom.PointInstancer.Get(stage, "/World/Particles")
-    if inst:  # one prototype per material, in the scene's order: foam comes with its effect
-        assert [p.name for p in inst.GetPrototypesRel().GetTargets()] == list(scene.materials)
+    if inst:  # one prototype per material, in the scene's order (foam comes with its effect), then
+        # the sub-grid bubbles' own, one per gas, where the scene has them
+        subgrid = [f"{m}_subgrid" for m, mat in scene.materials.items()
+                   if mat.kind == "gas" and "subgrid_bubbles" in scene.effects]
+        assert [p.name for p in inst.GetPrototypesRel().GetTargets()] == list(scene.materials) + subgrid
     assert stage.GetPrimAtPath("/World/ParticlePoints").IsValid() == (scene.output.format != "instancer")
     colliders = stage.GetPrimAtPath("/World/Colliders")
     assert (len(colliders.GetChildren()) if colliders else 0) == len(scene.colliders)

@@ -19,7 +19,7 @@ from .guards import Heartbeat, check_fluid_left, frame_step_guard
 from .ownership import OutputClaim, OutputError, frames_dir, write_failed
 from .streams import RunLog, now, safe_stream
 from .usd_colliders import write_colliders
-from .usd_materials import dress_stage
+from .usd_materials import dress_stage, scene_prototypes
 from .surface import builder_for, liquid_surface
 from .usd_output import StageWriter
 
@@ -124,8 +124,8 @@ def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame, run_log) ->
     that stops the simulation gets the frame it was computing and the frames kept."""
     scene, out = sim.scene, sim.scene.output
     checkpoint = checkpoint_path(out.path)
-    materials = [(m.name, tuple(m.color)) for m in scene.materials.values()]
-    looks = [(m.name, m.kind, tuple(m.color)) for m in scene.materials.values()]
+    looks, prototype_of = scene_prototypes(scene)  # one per material, and the sub-grid bubbles' own
+    materials = [(name, color) for name, _, color in looks]
     bar = ProgressBar(out.frames, stream=log, first=resume_after or 0) if log else None
     beat, started = Heartbeat(log) if log else None, time.perf_counter()
 
@@ -149,7 +149,7 @@ def _frame_loop(sim: Simulation, claim, resume_after, log, on_frame, run_log) ->
     try:
         writer = StageWriter(out.path, fps=out.fps, materials=materials, particle_radius=out.particle_radius,
                              format=out.format, up_axis=out.up_axis, resume_after=resume_after,
-                             decorate=decorate, claim=claim, surface=out.surface)
+                             decorate=decorate, claim=claim, surface=out.surface, prototype_of=prototype_of)
         run_log.write(_started(sim, claim, resume_after))
         builder = builder_for(sim, out.surface_resolution, out.surface_smoothing) if out.surface else None
         with writer:
@@ -202,7 +202,7 @@ def _write(sim: Simulation, writer: StageWriter, checkpoint, builder=None) -> in
         p = sim.particles_numpy()
         writer.write_frame(sim.frame, p["positions"], p["velocities"], p["ids"], p["material"],
                            output_radii(sim, p, writer.radius),
-                           surface=surface)
+                           surface=surface, phase=p["phase"])
         save_checkpoint(sim, checkpoint)
     return sim.frame
 

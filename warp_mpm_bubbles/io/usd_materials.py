@@ -2,12 +2,16 @@
 set-up: one material per scene material bound to its PointInstancer prototype, the liquid's look bound
 to the surface mesh, grey for the colliders, and for the Points prim a material that reads each
 point's displayColor. displayColor stays on every prim (viewports without material support use it).
+Sub-grid bubbles (a phase of a gas material, not a material of their own) get a prototype and a
+material of their own, named after their gas (`air_subgrid`), so a renderer shades the small bubbles
+apart from the resolved air (scene_prototypes).
 
 Looks (UsdPreviewSurface has no transmission input: opacity plus ior is what USD renderers and
 Blender's importer turn into a refracting surface):
     liquid    the material's colour, opacity 0.1, ior 1.33, roughness 0.02: clear water
     gas       white, opacity 0.25, ior 1.0, roughness 0.3: faint air
     foam      white, opaque, roughness 0.9
+    subgrid   white, opacity 0.6, ior 1.0, roughness 0.1: small bubbles read as bright glossy specks
     collider  grey (usd_colliders.COLOR), opaque, roughness 0.4
 """
 
@@ -26,11 +30,37 @@ def look(kind: str, color) -> dict:
         return {"diffuseColor": tuple(color), "opacity": 0.1, "ior": 1.33, "roughness": 0.02, "metallic": 0.0}
     if kind == "gas":
         return {"diffuseColor": _WHITE, "opacity": 0.25, "ior": 1.0, "roughness": 0.3, "metallic": 0.0}
+    if kind == "subgrid":
+        return {"diffuseColor": _WHITE, "opacity": 0.6, "ior": 1.0, "roughness": 0.1, "metallic": 0.0}
     if kind == "foam":
         return {"diffuseColor": (0.95, 0.95, 0.95), "opacity": 1.0, "ior": 1.5, "roughness": 0.9, "metallic": 0.0}
     if kind == "collider":
         return {"diffuseColor": tuple(color), "opacity": 1.0, "ior": 1.5, "roughness": 0.4, "metallic": 0.0}
     raise ValueError(f"no look for material kind {kind!r}")
+
+
+def scene_prototypes(scene) -> tuple[list, list]:
+    """The instancer's prototypes of a scene: (looks, prototype_of). looks: (name, kind, color) per
+    prototype in index order, one per scene material (its particles' material index is their
+    prototype), then, with [effects.subgrid_bubbles], one of kind "subgrid" per gas material for its
+    sub-grid bubbles; prototype_of: (material index, phase) of each prototype after the materials,
+    as StageWriter takes it. A name another prototype already has gets a trailing underscore."""
+    from ..core.grid import PHASE_SUBGRID
+
+    looks = [(m.name, m.kind, tuple(m.color)) for m in scene.materials.values()]
+    prototype_of = []
+    if "subgrid_bubbles" in scene.effects:
+        taken = {Tf.MakeValidIdentifier(name) for name, _, _ in looks}
+        for i, (name, kind, color) in enumerate(list(looks)):
+            if kind != "gas":
+                continue
+            own = Tf.MakeValidIdentifier(name + "_subgrid")
+            while own in taken:
+                own += "_"
+            taken.add(own)
+            looks.append((own, "subgrid", color))
+            prototype_of.append((i, PHASE_SUBGRID))
+    return looks, prototype_of
 
 
 def define_material(stage, name: str, inputs: dict, primvar_color: bool = False) -> UsdShade.Material:

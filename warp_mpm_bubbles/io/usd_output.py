@@ -113,14 +113,19 @@ class StageWriter:
     def __init__(self, path, *, fps: float, materials: list[tuple[str, tuple[float, float, float]]],
                  particle_radius: float, format: str = "instancer", up_axis: str = "Y",
                  meters_per_unit: float = 1.0, resume_after: int | None = None, decorate=None,
-                 overwrite: bool = False, claim: OutputClaim | None = None, surface: bool = False):
+                 overwrite: bool = False, claim: OutputClaim | None = None, surface: bool = False,
+                 prototype_of=()):
         """resume_after=k keeps the frames already on disk up to k (a resumed run) and goes on
         from k + 1; otherwise an existing output is refused (OutputExists) unless overwrite=True,
         which deletes only the files this project wrote. claim: an OutputClaim the caller already
         holds (run_scene, which claims before building the simulation); without one the writer
         takes its own and releases it on close(). decorate(stage), if given, adds prims that do
         not change per frame (or are sampled up front: colliders) to the top layer. surface=True
-        adds the clip-animated mesh SURFACE, filled by write_frame(surface=...)."""
+        adds the clip-animated mesh SURFACE, filled by write_frame(surface=...).
+        prototype_of: (material index, phase) for each of the last len(prototype_of) entries of
+        `materials`, a prototype of its own for the particles of that material in that phase (the
+        sub-grid bubbles: scene_prototypes); the entries before them are the scene's materials,
+        prototype i = material i. With any, write_frame needs each particle's phase."""
         t0 = time.perf_counter()
         if format not in FORMATS:
             raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
@@ -135,7 +140,10 @@ class StageWriter:
         self.radius = float(particle_radius)
         self.seconds = 0.0
         self._colors = np.array([c for _, c in materials], dtype=np.float32).reshape(-1, 3)
-        self._n_mat = len(materials)
+        self._prototype_of = [(int(m), int(ph)) for m, ph in prototype_of]
+        self._n_mat = len(materials) - len(self._prototype_of)  # the scene's materials
+        if self._n_mat < 1 or any(not 0 <= m < self._n_mat for m, _ in self._prototype_of):
+            raise ValueError("prototype_of must name materials among the first entries of materials")
         self._prims = [p for p, on in ((INSTANCER, format != "points"),
                                        (POINTS, format != "instancer")) if on]
         if surface:
@@ -232,8 +240,9 @@ class StageWriter:
 
     def write_frame(self, frame: int, positions: np.ndarray, velocities: np.ndarray,
                     ids: np.ndarray, material: np.ndarray, radii: np.ndarray | None = None,
-                    surface=None) -> None:
+                    surface=None, phase: np.ndarray | None = None) -> None:
         """radii (N,), metres: per-particle sizes (foam, sub-grid bubbles); None: particle_radius for all.
+        phase (N,): each particle's phase, which picks the prototypes of `prototype_of`.
         surface: the liquid's mesh this frame (io/surface.SurfaceMesh) when the writer has one; None: empty."""
         t0 = time.perf_counter()
         if self._closed:
@@ -246,6 +255,7 @@ class StageWriter:
         pos, vel, ids, mat = self._validate(frame, positions, velocities, ids, material)
         n = len(pos)
         rad = self._radii(frame, radii, n)
+        proto = self._proto_indices(frame, mat, phase)
 
         if n and radii is None:
             lo, hi = pos.min(axis=0) - self.radius, pos.max(axis=0) + self.radius
@@ -257,7 +267,7 @@ class StageWriter:
         v_pos, v_vel = Vt.Vec3fArray.FromNumpy(pos), Vt.Vec3fArray.FromNumpy(vel)
         v_ids, v_mat = Vt.Int64Array.FromNumpy(ids), Vt.IntArray.FromNumpy(mat)
         values = {
-            (INSTANCER, "protoIndices"): v_mat, (INSTANCER, "positions"): v_pos,
+            (INSTANCER, "protoIndices"): Vt.IntArray.FromNumpy(proto), (INSTANCER, "positions"): v_pos,
             (INSTANCER, "ids"): v_ids, (INSTANCER, "velocities"): v_vel,
             (INSTANCER, "extent"): extent,
             (POINTS, "points"): v_pos, (POINTS, "ids"): v_ids, (POINTS, "velocities"): v_vel,
@@ -320,6 +330,18 @@ class StageWriter:
         if n and (mat.min() < 0 or mat.max() >= self._n_mat):
             raise ValueError(f"frame {frame}: material index outside [0, {self._n_mat})")
         return pos, vel, ids, mat
+
+    def _proto_indices(self, frame, mat, phase) -> np.ndarray:
+        """Each particle's prototype: its material's, or the one of `prototype_of` for its material and phase."""
+        if not self._prototype_of:
+            return mat
+        ph = None if phase is None else np.ascontiguousarray(phase, dtype=np.int32)
+        if ph is None or ph.shape != mat.shape:
+            raise ValueError(f"frame {frame}: phase is needed, shape {mat.shape}, for the prototypes of phases")
+        proto = mat.copy()
+        for k, (m, p) in enumerate(self._prototype_of):
+            proto[(mat == m) & (ph == p)] = self._n_mat + k
+        return proto
 
     def _radii(self, frame, radii, n) -> np.ndarray:
         if radii is None:

@@ -57,6 +57,36 @@ MIN_HEIGHT = wp.constant(0.1)  # of a cell: a nearly empty cell counts this tall
 LENT, DRAINED, BURST, THROUGH_BOTTOM = range(4)
 
 
+@wp.struct
+class FoamBook:
+    """A foam particle's clock and films, and the books their liquid is kept in."""
+
+    life: wp.array(dtype=float)  # seconds left
+    liquid: wp.array(dtype=float)  # m^3 of liquid in its films
+    ledger: wp.array(dtype=wp.float64)  # the stage's liquid ledger (LENT, DRAINED, BURST, THROUGH_BOTTOM)
+    # With a two-way head (foam_head.py): per grid column (at its cell of up index 0), the liquid
+    # owed to the water, m^3 (lent to films: negative); without: a stand-in nothing reads.
+    returned: wp.array3d(dtype=wp.float64)
+    head: int  # 1 with a two-way head
+
+
+def foam_book(life, liquid, ledger, returned, head: bool) -> FoamBook:
+    b = FoamBook()
+    b.life, b.liquid, b.ledger, b.returned, b.head = life, liquid, ledger, returned, int(head)
+    return b
+
+
+@wp.func
+def book_to_column(book: FoamBook, c: wp.vec3i, up_axis: int, volume: wp.float64):
+    """With a head: `volume` of liquid owed to the water of the column holding cell c."""
+    if book.head == 0:
+        return
+    s = c
+    s[up_axis] = 0
+    if inside(book.returned, s):
+        wp.atomic_add(book.returned, s[0], s[1], s[2], volume)
+
+
 def drainage_coefficients(bubble_radius, density, gravity, viscosity, surface_tension, drag):
     """(K1 in m/s, K2 in m^2/s) of the drainage equation, from the foam's and liquid's properties."""
     edge = KELVIN_EDGE * bubble_radius
@@ -198,11 +228,10 @@ def drain_columns(dt: float, k1: float, k2: float, dx: float, up_axis: int, up_s
 
 
 @wp.kernel
-def gather_foam(geo: GridGeometry, particles: Particles, liquid: wp.array(dtype=float),
-                gas_cells: wp.array3d(dtype=wp.float64), liquid_cells: wp.array3d(dtype=wp.float64),
-                ledger: wp.array(dtype=wp.float64)):
+def gather_foam(geo: GridGeometry, particles: Particles, book: FoamBook,
+                gas_cells: wp.array3d(dtype=wp.float64), liquid_cells: wp.array3d(dtype=wp.float64)):
     """The cells' drained liquid back to their foam particles, by gas volume; the ledger books
-    each particle's change exactly (as the float32 it now holds)."""
+    each particle's change exactly (as the float32 it now holds), and with a head, its column."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_FOAM:
         return
@@ -211,8 +240,10 @@ def gather_foam(geo: GridGeometry, particles: Particles, liquid: wp.array(dtype=
         return
     share = wp.float64(particles.vol0[p] * particles.J[p]) / gas_cells[c[0], c[1], c[2]]
     new = float(wp.max(liquid_cells[c[0], c[1], c[2]] * share, wp.float64(0.0)))
-    wp.atomic_add(ledger, DRAINED, wp.float64(liquid[p]) - wp.float64(new))
-    liquid[p] = new
+    drained = wp.float64(book.liquid[p]) - wp.float64(new)
+    wp.atomic_add(book.ledger, DRAINED, drained)
+    book_to_column(book, c, geo.up_axis, drained)
+    book.liquid[p] = new
 
 
 def column_launch_shape(shape, up_axis: int):

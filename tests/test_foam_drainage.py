@@ -53,7 +53,7 @@ class Column:
     def run(self, t_end, dt=0.02, k1=CODE_K1, k2=CODE_K2):
         for _ in range(int(round(t_end / dt))):
             wp.launch(fd.drain_columns, (1, 1, 1), [dt, k1, k2, self.dx, 1, 1, self.types, self.liq, self.gas_w,
-                                                    self.liquid, self.ledger], device="cpu")
+                                                    self.liquid, self.ledger, 0], device="cpu")
         return self
 
     def alpha(self):

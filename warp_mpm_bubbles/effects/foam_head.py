@@ -45,7 +45,7 @@ from ..core.host_state import HostState, saved
 from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
 from ..core.cells import cell_of, inside, is_solid
 from ..core.geometry import GridGeometry
-from ..core.grid import FLUID, PHASE_FOAM
+from ..core.grid import FLUID, PHASE_FOAM, PHASE_LIQUID
 from ..core.kernel_args import FaceField, Particles
 from ..core.transfer_kernels import interpolate_velocity
 from .foam_drainage import BURST, FoamBook, book_to_column, cell_at, column_launch_shape
@@ -349,6 +349,32 @@ def load_water(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), liq_volume:
     head.impulse[slot[0], slot[1], slot[2]] = left
 
 
+@wp.kernel
+def take_water(geo: GridGeometry, particles: Particles, head: HeadCells, taken: wp.array(dtype=wp.float64)):
+    """Water particles within LOAD_DEPTH cells of the surface of a column that owes its films at least
+    their volume join the films (retired; their mass booked in `taken`, kg): the liquid a new foam's
+    films hold comes out of the water under it. Launched serially on the CPU: the same particles
+    every run; on a GPU, which of a column's particles go may differ, never how much."""
+    p = wp.tid()
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_LIQUID:
+        return
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    c = cell_of(xp, geo.origin, geo.dx)
+    slot = cell_at(c, geo.up_axis, 0)
+    if not inside(head.surface, slot):
+        return
+    zs = head.surface[slot[0], slot[1], slot[2]]
+    if zs <= 0.5 * NO_SURFACE or float(geo.up_sign) * xp[geo.up_axis] < zs - LOAD_DEPTH * geo.dx:
+        return
+    v = wp.float64(particles.vol0[p])
+    before = wp.atomic_add(head.returned, slot[0], slot[1], slot[2], v)
+    if before > -v:  # the column owes less than this particle: it stays water
+        wp.atomic_sub(head.returned, slot[0], slot[1], slot[2], v)
+        return
+    particles.active[p] = 0
+    wp.atomic_add(taken, 0, wp.float64(particles.mass[p]))
+
+
 @dataclass
 class HeadState(HostState):
     """The water particles made so far from the head's liquid (their offsets in a cell follow it)."""
@@ -370,6 +396,7 @@ class Head:
         cells.impulse = wp.zeros(self.columns, dtype=wp.vec3d, device=dev)
         cells.returned = wp.zeros(self.columns, dtype=wp.float64, device=dev)
         self.cells = cells
+        self.taken = wp.zeros(1, dtype=wp.float64, device=dev)  # kg of water joined to films this step
         prm = HeadParams()
         axis, sign = ctx.geometry.up_axis, ctx.geometry.up_sign
         prm.up = wp.vec3(*(float(sign) if a == axis else 0.0 for a in range(3)))
@@ -403,8 +430,16 @@ class Head:
                                               kernel_args.face_field(f.inv_rho), self.cells])
 
     def return_water(self, ctx):
-        """Where a column's water is owed a whole particle of liquid, add it just under the surface
-        (at rest); the rest stays owed. One host read a step (the owed liquid per column)."""
+        """Settle the columns' water with their films: where the films owe a column's water its
+        particles, those near the surface join them (take_water); where the water is owed a whole
+        particle, one is added just under the surface (at rest). The rest stays owed. Two host reads a
+        step: the mass taken (the core's liquid ledger books it as removed) and the owed liquid."""
+        self.taken.zero_()
+        ctx.launch(take_water, ctx.particles.count, [ctx.geometry, kernel_args.particle_arrays(ctx.particles),
+                                                     self.cells, self.taken])
+        taken = float(ctx.read_host(self.taken)[0])
+        if taken:
+            ctx.ledger.liquid_added -= taken
         owed = np.array(ctx.read_host(self.cells.returned), np.float64)
         per = self.particle_volume
         columns = np.argwhere(owed >= per)

@@ -133,7 +133,7 @@ def wave_errors(n, height=0.15, start=0.08, duration=10.0, dt=0.01):
         liquid[0, n, 0] = A_WET / (1.0 - A_WET) * gas[0, n, 0]  # the reservoir, topped up
         col.liquid = wp.array(liquid, dtype=wp.float64, device="cpu")
         wp.launch(fd.drain_columns, (1, 1, 1), [dt, CODE_K1, CODE_K2, col.dx, 1, 1, col.types, col.liq,
-                                                col.gas_w, col.liquid, col.ledger], device="cpu")
+                                                col.gas_w, col.liquid, col.ledger, 0], device="cpu")
         liquid = col.liquid.numpy()
     alpha = liquid[0, 1:n, 0] / (liquid[0, 1:n, 0] + gas[0, 1:n, 0])  # below the reservoir
     i = np.flatnonzero(alpha >= A_WET / 2).min()  # the deepest cell past half (index 0 is the bottom)

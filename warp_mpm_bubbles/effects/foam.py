@@ -12,9 +12,11 @@ Ihmsen et al. 2012, with the interpolated liquid fraction phi deciding the regim
                          (buoyant when submerged, settling when above)
     phi < AIRBORNE_PHI   no liquid within the stencil: ballistic under gravity
 
-One-way coupled: foam is 1/20 of the water's density and a thin layer, so its weight and drag on
-the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically). A
-scene with foam therefore simulates its liquid and gas bit for bit as the same scene without it.
+One-way coupled by default: foam is 1/20 of the water's density and a thin layer, so its weight and
+drag on the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically).
+A scene with such foam simulates its liquid and gas bit for bit as the same scene without it. With
+head = true the foam is a two-way head instead (foam_head.py): it stacks on the water, loads it, and
+trades liquid with it.
 
 Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle id): one draw
 per particle, the same on every run and device, independent of launch order; or, with lifetimes =
@@ -198,6 +200,13 @@ class FoamStage(Stage):
         if self.head is None:
             hooks.discard("force")  # one-way foam leaves the water alone
         return hooks
+
+    def dt_limit(self, ctx) -> float:
+        # A head's bubbles settle toward their places at rise_speed x (distance / dx): within a step
+        # they must not overshoot them (one-way foam moves kinematically and sets no limit).
+        if self.head is None or self.settings.rise_speed <= 0.0:
+            return math.inf
+        return ctx.grid.dx / self.settings.rise_speed
 
     def _book(self, ctx) -> FoamBook:
         p = ctx.particles

@@ -203,6 +203,30 @@ def test_a_head_drains_down_to_the_height_where_its_films_burst(tmp_path, column
     assert heights[-1] == pytest.approx(h_eq, rel=0.05)
 
 
+# ------------------------------------------------- collapse by lifetimes: Bikerman's decay of the height
+def test_a_heads_height_decays_at_the_set_time_constant(tmp_path):
+    # collapse = "lifetime" (the default) on a head: the bubbles burst at the end of their drawn
+    # lifetimes (stratified), so the head's height (its volume over the area) falls as
+    # exp(-t / lifetime). The fitted time constant of the mean height over 0.05-0.6 s against the set
+    # 0.2 s: measured +1.32%, +0.62%, -0.002% at 32, 64, 128 columns (383, 1536, 6144 bubbles; 0.8,
+    # 2.4, 10 s of CPU): order 1.1, then to the sampling's floor. Bound 2% each (the issue asks 5%),
+    # falling with resolution. Lifetimes 3% long give +4.6%, +3.6%, +2.9%.
+    errors = []
+    for columns in (32, 64, 128):
+        sim = Simulation(tank(tmp_path, columns, drainage=False, lifetime=0.2, lifetimes="stratified"), "cpu")
+        head, times, heights = sim.stage("foam").head, [], []
+        while sim.time < 0.6:
+            step(sim)
+            if sim.time > 0.05:
+                times.append(sim.time)
+                heights.append(np.mean(head.cells.top.numpy()[1:-1, 0, 0] - head.cells.surface.numpy()[1:-1, 0, 0]))
+        tau = -1.0 / np.polyfit(times, np.log(heights), 1)[0]
+        errors.append(tau / 0.2 - 1.0)
+    print("time constant errors", errors)
+    assert all(abs(e) < 0.02 for e in errors)
+    assert abs(errors[2]) < abs(errors[0])
+
+
 # --------------------------------------------------------------------------- opt-in, and bad settings
 def test_without_head_no_head_kernel_runs(tmp_path):
     scene = tank(tmp_path, lifetime=1e6)

@@ -94,6 +94,9 @@ def test_the_head_stacks_to_its_volume_over_the_area(tmp_path):
     column = np.floor((x[:, 0] - sim.ctx.geometry.origin[0]) / dx).astype(int) - 1
     highest = np.array([x[column == c, 1].max() for c in range(len(top))])
     gap = np.abs(highest - top) / dx
+    assert sim.stage("foam").summary_lines(sim.ctx) == [
+        f"  foam: a two-way head, bubbles burst at drawn lifetimes (mean 1e+06 s); it stands "
+        f"{head.height() * 1e3:.3g} mm tall on average"]
     print(f"height {np.mean(top - surface) * 1e3:.2f} mm; top bubble off by {gap.mean():.2f} cells "
           f"(median {np.median(gap):.2f}, max {gap.max():.2f})")
     assert 0.012 < np.mean(top - surface) < 0.017

@@ -201,6 +201,15 @@ class FoamStage(Stage):
             hooks.discard("force")  # one-way foam leaves the water alone
         return hooks
 
+    def summary_lines(self, ctx) -> list[str]:
+        """A head says which collapse it runs and how tall it stands (one-way foam: nothing)."""
+        if self.head is None:
+            return []
+        s = self.settings
+        mode = (f"films burst below a liquid fraction of {s.burst_fraction:g}" if s.collapse == "drainage"
+                else f"bubbles burst at drawn lifetimes (mean {s.lifetime:g} s)")
+        return [f"  foam: a two-way head, {mode}; it stands {self.head.height() * 1e3:.3g} mm tall on average"]
+
     def dt_limit(self, ctx) -> float:
         # A head's bubbles settle toward their places at rise_speed x (distance / dx): within a step
         # they must not overshoot them (one-way foam moves kinematically and sets no limit).

@@ -484,6 +484,12 @@ class Head:
             if name in arrays:
                 array.assign(wp.array(arrays[name], dtype=array.dtype, device=array.device))
 
+    def height(self) -> float:
+        """The head's mean height over the columns with water, m (its foam volume over their area)."""
+        surface, top = self.cells.surface.numpy(), self.cells.top.numpy()
+        wet = surface > 0.5 * NO_SURFACE
+        return float((top[wet] - surface[wet]).mean()) if wet.any() else 0.0
+
     def owed(self) -> float:
         """m^3 of liquid owed to the water now (negative: the films hold more than has come back)."""
         return float(self.cells.returned.numpy().astype(np.float64).sum())

@@ -103,8 +103,8 @@ class Foam:
         self.head = c.flag(f"{t}.head", self.head)
         self.collapse = c.choice(f"{t}.collapse", self.collapse, ("lifetime", "drainage"))
         self.burst_fraction = c.number(f"{t}.burst_fraction", self.burst_fraction, gt=0, lt=Limit(
-            self.liquid_fraction, f"is the new foam's liquid_fraction ({self.liquid_fraction:g}): it would burst as "
-                                  "it forms; set a value below it (films burst near 0.001)"))
+            self.liquid_fraction, "is the new foam's liquid_fraction: it would burst as it forms; set a value "
+                                  "below it (films burst near 0.001)"))
         if self.head and not any(scene.domain.gravity):
             c.fail(f"{t}.head", self.head, "a head rests on the water by its weight: give [domain].gravity, or "
                    "set head = false")

@@ -237,7 +237,8 @@ def test_a_head_drains_down_to_the_height_where_its_films_burst(tmp_path, column
     while sim.time < 2.0:
         step(sim)
         heights.append(np.mean(head.cells.top.numpy()[1:-1, 0, 0] - head.cells.surface.numpy()[1:-1, 0, 0]))
-    print(f"{columns} columns: head {max(heights) * 1e3:.1f} mm -> {heights[-1] * 1e3:.2f} mm, h_eq {h_eq * 1e3:.2f} mm")
+    print(f"{columns} columns: head {max(heights) * 1e3:.1f} mm -> {heights[-1] * 1e3:.2f} mm, "
+          f"h_eq {h_eq * 1e3:.2f} mm")
     assert max(heights) > 1.1 * h_eq  # it stood taller
     assert heights[-1] == pytest.approx(h_eq, rel=0.05)
 

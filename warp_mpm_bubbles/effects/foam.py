@@ -262,7 +262,8 @@ class FoamStage(Stage):
         ctx.launch(foam_drainage.drain_columns, foam_drainage.column_launch_shape(f.types.shape, geo.up_axis),
                    [dt, self._k1, self._k2, geo.dx, geo.up_axis, geo.up_sign, f.types, f.liq_volume,
                     self._gas_cells, self._liquid_cells, self.liquid_ledger, int(self.head is not None)])
-        ctx.launch(foam_drainage.gather_foam, p.count, [geo, parts, self._book(ctx), self._gas_cells, self._liquid_cells])
+        ctx.launch(foam_drainage.gather_foam, p.count,
+                   [geo, parts, self._book(ctx), self._gas_cells, self._liquid_cells])
 
     # The liquid ledger is summed on the device, so it is checkpointed from there (not a HostState).
     def state_arrays(self) -> dict:

@@ -1,38 +1,34 @@
 """A two-way foam head ([effects.foam] head = true): foam that rests on the water, stacks into a head,
-loads the water below with its weight, returns its drained liquid as water, and bursts when its
-films run dry.
+loads the water below with its weight, takes its films' liquid from the water and gives back what
+drains, and (collapse = "drainage") bursts when its films run dry.
 
 The foam is a light material on the surface, moved column by column (docs/foam.md, "The head"):
 
 - **Stacking.** Each step the foam particles' volume (gas plus films' liquid) is summed into the
-  cells; each grid column finds its water surface (the highest cell at least half full of liquid,
-  the surface that far into it plus the liquid of the cell above) and the foam volume below every
-  cell. A foam particle's place in the head is the surface plus the foam volume below it in its
-  column over the column's area: the head is the column's foam packed on the water, in the order
-  its particles already have, and its height is the column's foam volume over its area.
+  cells; each grid column finds its water surface (surface_elevation) and the foam volume below
+  every cell. A foam particle's place is the surface plus the foam volume below it in its column
+  over the column's area: the column's foam packed on the water, in the order its particles
+  already have. The head's height in a column is its foam volume over its area.
 - **Resting, by weight and support.** A particle above its place falls freely under gravity; one
-  that reaches it rests there, moving with the water's surface (horizontally its velocity, along
-  gravity the place's own motion, up to `rise_speed` when it must float back up). Every change of
-  a resting particle's momentum besides its weight's impulse is the water's support: the
-  reaction, minus that, is booked to its column.
-- **Loading the water (two-way).** Before the next pressure solve, each column's booked impulse
-  is put on the water's faces (the `force` hook): along gravity on the face between the first and
-  second cells below the surface cell (clear of the free surface's transfer stencil, so its p2g
-  mass is a whole cell's), across it on the side faces of the cell below the surface cell. Each
-  face's velocity changes by impulse / face mass, so the water's grid momentum changes by exactly
-  the impulse the foam lost, and g2p hands it to the particles. A head of weight W resting on a
-  column of area A adds W / A to the pressure below that face: the weight of the foam reaches the
-  floor. What no face can take (a column without water, too shallow) stays booked.
-- **Drained and burst liquid returns to the water.** The liquid that leaves the head's bottom
-  (foam_drainage.py) and the films of burst bubbles are owed to their column's water; the liquid
-  lent to new films is owed back. Where a column is owed a water particle's volume, the stage adds
-  one just below the surface (at rest). Water in particles + liquid in films + owed stays constant
-  to round-off.
-- **Films burst when they thin** (`collapse = "drainage"`): a foam particle whose liquid fraction
-  falls below `burst_fraction` bursts (its gas vents, its films' liquid is owed to the water);
-  `collapse = "lifetime"` keeps Bikerman's drawn lifetimes (foam.py).
+  that reaches it rests, moving with the water's surface along gravity and settling toward its
+  place at up to `rise_speed`; across gravity it only levels the head (spreading: a light layer
+  floating on water spreads down the gradient of its thickness). Every change of a resting
+  particle's momentum besides its weight's impulse is the water's support: its opposite is booked
+  to the column.
+- **Loading the water (two-way).** Before the next pressure solve (the `force` hook) each column's
+  booked impulse goes on its water LOAD_DEPTH cells under the surface, shared by the two faces
+  around that depth by nearness, as the pressure solve applies its own forces (du = impulse /
+  (rho_face dx^3)): a head of weight W on a column of area A adds W / A to the pressure below.
+  What no face can take (a column without water) stays booked.
+- **Liquid back and forth.** Per column the liquid owed to the water: new films lend theirs,
+  drained liquid (foam_drainage.py) and the films of burst bubbles are owed back. Where the films
+  owe a column's water a particle, water particles near the surface join them (take_water); where
+  the water is owed one, the stage adds it just under the surface, at rest. Water in particles +
+  films + owed stays constant to round-off.
+- **Films burst when they thin** (`collapse = "drainage"`, burst_head): a foam particle whose
+  liquid fraction falls below `burst_fraction` bursts (its gas vents, its films' liquid is owed to
+  the water); `collapse = "lifetime"` keeps Bikerman's drawn lifetimes (foam.py).
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass

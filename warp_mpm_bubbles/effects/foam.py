@@ -12,9 +12,11 @@ Ihmsen et al. 2012, with the interpolated liquid fraction phi deciding the regim
                          (buoyant when submerged, settling when above)
     phi < AIRBORNE_PHI   no liquid within the stencil: ballistic under gravity
 
-One-way coupled: foam is 1/20 of the water's density and a thin layer, so its weight and drag on
-the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically). A
-scene with foam therefore simulates its liquid and gas bit for bit as the same scene without it.
+One-way coupled by default: foam is 1/20 of the water's density and a thin layer, so its weight and
+drag on the liquid are left out, and its speed does not enter the CFL limit (it moves kinematically).
+A scene with such foam simulates its liquid and gas bit for bit as the same scene without it. With
+head = true the foam is a two-way head instead (foam_head.py): it stacks on the water, loads it, and
+trades liquid with it.
 
 Lifetimes: -lifetime * ln(1 - u), u from Warp's PCG hash of (scene seed, particle id): one draw
 per particle, the same on every run and device, independent of launch order; or, with lifetimes =
@@ -36,8 +38,8 @@ from ..core.geometry import GridGeometry
 from ..core.kernel_args import FaceField, Particles
 from ..core.grid import PHASE_FOAM, PHASE_GAS, sphere_radius
 from ..core.stage import Stage
-from . import foam_drainage
-from .foam_drainage import BURST, DRAINED, LENT, THROUGH_BOTTOM
+from . import foam_drainage, foam_head
+from .foam_drainage import BURST, DRAINED, LENT, THROUGH_BOTTOM, FoamBook, book_to_column, foam_book
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
 from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
@@ -134,12 +136,11 @@ def weyl_fraction(i: wp.int64):
 
 @wp.kernel
 def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeometry, types: wp.array3d(dtype=wp.int32),
-                ceiling: wp.array3d(dtype=wp.int32), particles: Particles, life: wp.array(dtype=float),
-                wet: float, liquid: wp.array(dtype=float), liquid_ledger: wp.array(dtype=wp.float64),
+                ceiling: wp.array3d(dtype=wp.int32), particles: Particles, book: FoamBook, wet: float,
                 stratified: int):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime and
     the liquid of its films, wet / (1 - wet) of its gas volume (liquid fraction `wet`), which the
-    liquid ledger books as lent by the water."""
+    liquid ledger books as lent by the water (with a head, by its column's water)."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS:
         return
@@ -154,10 +155,11 @@ def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeomet
     u = wp.randf(state)  # in [0, 1)
     if stratified != 0:
         u = weyl_fraction(particles.ids[p])
-    life[p] = -mean_life * wp.log(1.0 - u)  # exponential
+    book.life[p] = -mean_life * wp.log(1.0 - u)  # exponential
     held = wet / (1.0 - wet) * particles.vol0[p] * particles.J[p]
-    liquid[p] = held
-    wp.atomic_add(liquid_ledger, LENT, wp.float64(held))
+    book.liquid[p] = held
+    wp.atomic_add(book.ledger, LENT, wp.float64(held))
+    book_to_column(book, c, geo.up_axis, -wp.float64(held))
 
 
 class FoamStage(Stage):
@@ -188,6 +190,36 @@ class FoamStage(Stage):
                 settings.surface_tension, settings.permeability_constant)
         self._up = wp.vec3(*(-a / g_mag for a in g)) if g_mag > 0.0 else wp.vec3(0.0)
         self._seed = int(ctx.scene.solver.seed) & 0x7FFFFFFF
+        # A two-way head (foam_head.py) owes liquid to its columns' water; without, a stand-in.
+        self.head = foam_head.Head(ctx, settings, self._liquid_density(ctx.scene)) if settings.head else None
+        self._returned = self.head.cells.returned if self.head else wp.zeros((1, 1, 1), dtype=wp.float64,
+                                                                              device=ctx.device)
+
+    def hooks(self) -> set[str]:
+        hooks = super().hooks()
+        if self.head is None:
+            hooks.discard("force")  # one-way foam leaves the water alone
+        return hooks
+
+    def summary_lines(self, ctx) -> list[str]:
+        """A head says which collapse it runs and how tall it stands (one-way foam: nothing)."""
+        if self.head is None:
+            return []
+        s = self.settings
+        mode = (f"films burst below a liquid fraction of {s.burst_fraction:g}" if s.collapse == "drainage"
+                else f"bubbles burst at drawn lifetimes (mean {s.lifetime:g} s)")
+        return [f"  foam: a two-way head, {mode}; it stands {self.head.height() * 1e3:.3g} mm tall on average"]
+
+    def dt_limit(self, ctx) -> float:
+        # A head's bubbles settle toward their places at rise_speed x (distance / dx): within a step
+        # they must not overshoot them (one-way foam moves kinematically and sets no limit).
+        if self.head is None or self.settings.rise_speed <= 0.0:
+            return math.inf
+        return ctx.grid.dx / self.settings.rise_speed
+
+    def _book(self, ctx) -> FoamBook:
+        p = ctx.particles
+        return foam_book(p.foam_life, p.foam_liquid, self.liquid_ledger, self._returned, self.head is not None)
 
     @staticmethod
     def _liquid_density(scene) -> float:
@@ -199,17 +231,26 @@ class FoamStage(Stage):
         foam = particles["phase"] == PHASE_FOAM
         return foam, sphere_radius(particles["volume"][foam])
 
+    def force(self, ctx, dt: float):
+        self.head.load(ctx)  # the head's weight and drag on the water, before the solve
+
     def after_g2p(self, ctx, dt: float):
         if not ctx.has_gas:
             return  # no gas, nothing ever becomes foam
         f, p = ctx.fields, ctx.particles
-        self.advance(ctx, dt)  # foam made this step has moved with the gas in g2p already
+        # foam made this step has moved with the gas in g2p already
+        if self.head is not None:
+            self.head.advance(ctx, dt, self._book(ctx), f.vented_mass)
+        else:
+            self.advance(ctx, dt)
         ctx.launch(gas_to_foam, p.count,
                    [self.material, self.settings.lifetime, self._seed, ctx.geometry, f.types, f.ceiling,
-                    kernel_args.particle_arrays(p), p.foam_life, self.settings.liquid_fraction, p.foam_liquid,
-                    self.liquid_ledger, int(self.settings.lifetimes == "stratified")])
+                    kernel_args.particle_arrays(p), self._book(ctx), self.settings.liquid_fraction,
+                    int(self.settings.lifetimes == "stratified")])
         if self.settings.drainage and ctx.geometry.up_axis >= 0:
             self.drain(ctx, dt)
+        if self.head is not None:
+            self.head.return_water(ctx)
 
     def drain(self, ctx, dt: float):
         """The foam's liquid drains down its columns (foam_drainage); the water is not changed."""
@@ -220,18 +261,21 @@ class FoamStage(Stage):
         ctx.launch(foam_drainage.splat_foam, p.count, [geo, parts, p.foam_liquid, self._gas_cells, self._liquid_cells])
         ctx.launch(foam_drainage.drain_columns, foam_drainage.column_launch_shape(f.types.shape, geo.up_axis),
                    [dt, self._k1, self._k2, geo.dx, geo.up_axis, geo.up_sign, f.types, f.liq_volume,
-                    self._gas_cells, self._liquid_cells, self.liquid_ledger])
+                    self._gas_cells, self._liquid_cells, self.liquid_ledger, int(self.head is not None)])
         ctx.launch(foam_drainage.gather_foam, p.count,
-                   [geo, parts, p.foam_liquid, self._gas_cells, self._liquid_cells, self.liquid_ledger])
+                   [geo, parts, self._book(ctx), self._gas_cells, self._liquid_cells])
 
     # The liquid ledger is summed on the device, so it is checkpointed from there (not a HostState).
     def state_arrays(self) -> dict:
-        return {"foam_liquid_ledger": self.liquid_ledger.numpy().copy()}
+        head = self.head.state_arrays() if self.head is not None else {}
+        return {"foam_liquid_ledger": self.liquid_ledger.numpy().copy(), **head}
 
     def load_state(self, arrays: dict) -> None:
         if "foam_liquid_ledger" in arrays:
             self.liquid_ledger.assign(wp.array(arrays["foam_liquid_ledger"], dtype=wp.float64,
                                                device=self.liquid_ledger.device))
+        if self.head is not None:
+            self.head.load_state(arrays)
 
     def liquid_budget(self, ctx) -> dict[str, float]:
         """The films' liquid, m^3: lent by the water, held now, drained back, burst; balanced, lent =
@@ -240,9 +284,13 @@ class FoamStage(Stage):
         phase, active = ctx.particles.numpy("phase")[:n], ctx.particles.numpy("active")[:n]
         held = ctx.particles.numpy("foam_liquid")[:n][(phase == PHASE_FOAM) & (active != 0)]
         ledger = self.liquid_ledger.numpy()
-        return {"lent": float(ledger[LENT]), "held": float(held.astype("float64").sum()),
-                "drained": float(ledger[DRAINED]), "burst": float(ledger[BURST]),
-                "through_bottom": float(ledger[THROUGH_BOTTOM])}
+        budget = {"lent": float(ledger[LENT]), "held": float(held.astype("float64").sum()),
+                  "drained": float(ledger[DRAINED]), "burst": float(ledger[BURST]),
+                  "through_bottom": float(ledger[THROUGH_BOTTOM])}
+        if self.head is not None:  # made into water particles, and still owed to the water
+            budget["water_made"] = self.head.state.water_made * self.head.particle_volume
+            budget["owed"] = self.head.owed()
+        return budget
 
     def advance(self, ctx, dt: float):
         f, p = ctx.fields, ctx.particles

@@ -77,6 +77,11 @@ class Foam:
     viscosity: float = 1.0e-3  # Pa s, of the liquid in the films
     surface_tension: float = 0.072  # N/m, of the films
     permeability_constant: float = 50.0  # Verbist's Plateau-border drag coefficient C (rigid walls ~50)
+    # A two-way head: the foam rests and stacks on the water, loads it with its weight, and its
+    # drained liquid returns to the water as particles (docs/foam.md, "The head")
+    head: bool = False
+    collapse: str = "lifetime"  # "lifetime": Bikerman's drawn lifetimes; "drainage": films burst when dry
+    burst_fraction: float = 1.0e-3  # collapse = "drainage": films drier than this liquid fraction burst
     key: ClassVar[str] = "foam"
 
     def _validate(self, c: _Checker, t, scene):
@@ -95,6 +100,20 @@ class Foam:
         self.surface_tension = c.number(f"{t}.surface_tension", self.surface_tension, gt=0, le=3)
         self.permeability_constant = c.number(f"{t}.permeability_constant", self.permeability_constant, gt=0,
                                               le=1e6)
+        self.head = c.flag(f"{t}.head", self.head)
+        self.collapse = c.choice(f"{t}.collapse", self.collapse, ("lifetime", "drainage"))
+        self.burst_fraction = c.number(f"{t}.burst_fraction", self.burst_fraction, gt=0, lt=Limit(
+            self.liquid_fraction, "is the new foam's liquid_fraction: it would burst as it forms; set a value "
+                                  "below it (films burst near 0.001)"))
+        if self.head and not any(scene.domain.gravity):
+            c.fail(f"{t}.head", self.head, "a head rests on the water by its weight: give [domain].gravity, or "
+                   "set head = false")
+        if self.head and not any(m.kind == "liquid" for m in scene.materials.values()):
+            c.fail(f"{t}.head", self.head, "a head rests on liquid: define a [materials.NAME] with kind = "
+                   "\"liquid\", or set head = false")
+        if self.collapse == "drainage" and not (self.head and self.drainage):
+            c.fail(f"{t}.collapse", self.collapse, "films burst when drainage thins them, on a two-way head: set "
+                   "head = true and drainage = true, or collapse = \"lifetime\"")
 
 
 @dataclass

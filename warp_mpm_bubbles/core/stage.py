@@ -21,7 +21,7 @@ A stage is one class in one module that owns all of its physics (docs/design.md,
       on_momentum     u* = p/m + dt g is on the faces  sub-grid bubbles: drag reaction
       on_cells        cells are classified             colliders mark solids; gas phases
       on_faces        face densities are set           colliders' face velocities
-      force           on u* before the solve           viscosity, surface tension
+      force           on u* before the solve           viscosity, surface tension, the foam head
       before_extend   u is projected                   gas: its own field (sharp interface)
       on_extended     a face field was extrapolated    colliders' face velocities again
       before_g2p      the grid is final                gas: volume change of its cells

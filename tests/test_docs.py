@@ -31,7 +31,8 @@ def _model_tables() -> dict[str, set[str]]:
     for kind, cls in model.SHAPE_TYPES.items():
         tables[f'[[shapes]] type = "{kind}"'] = keys(cls)
     for kind, cls in effects.EFFECT_TYPES.items():
-        tables[f"[effects.{kind}]"] = keys(cls)
+        if cls.__module__.startswith("warp_mpm_bubbles."):  # not an effect an example registered from outside
+            tables[f"[effects.{kind}]"] = keys(cls)
     for kind, cls in model.EMITTER_TYPES.items():
         tables[f'[[emitters]] type = "{kind}"'] = keys(cls)
     return tables

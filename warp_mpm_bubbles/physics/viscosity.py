@@ -43,7 +43,8 @@ class ViscosityStage(Stage):
         # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
         self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
         self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch, launch_parts=ctx.launch_parts,
-                                    threads=ctx.launcher.threads)
+                                    threads=ctx.launcher.threads, parallel=ctx.launcher.parallel,
+                                    counter=ctx.launcher.launches)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False

@@ -31,7 +31,8 @@ from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
 from ..core.cells import cell_type_at, is_solid, unit
 from ..core.lines import Lines, line_end, line_first, make_lines, split_lines
 from ..core.pressure import SolveInfo
-from ..core.threads import SPLIT_CELLS
+from ..core.threads import SPLIT_CELLS, Parallel
+from .viscous_multigrid import FaceMultigrid, dot_rz, pcg_residual, unknowns_box
 from .viscous_pcg import (BLACK, RED, AroundFace, add_into, pcg_direction, pcg_start, pcg_step, pcg_update, sgs_sweep,
                           value_at)
 
@@ -42,6 +43,7 @@ OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
 # threshold. Splitting from 4096 faces doubled the stage's time on a 1000:1 tank at 80 cells (12 s
 # against 6 s, 120 steps) on a shared two-core machine, where the hand-off waits for a core.
 SPLIT_FACES = SPLIT_CELLS
+MAX_RECORDED = 256  # recorded launches kept (ViscousSolver._replay): the PCG needs a few dozen
 
 
 @wp.func
@@ -297,11 +299,14 @@ class ViscousSolver:
     backward black sweep would repeat the forward one). Each half-sweep reads only the other colour,
     so its result does not depend on the threads' order. "jacobi": the diagonal alone."""
 
-    PRECONDITIONERS = ("sgs", "jacobi")
+    PRECONDITIONERS = ("sgs", "jacobi", "multigrid")
 
-    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1):
+    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1,
+                 parallel=None, counter=None):
         """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels;
-        launch_parts(kernel, [(dims, inputs), ...]): its launch of slabs at once on `threads` CPU threads."""
+        launch_parts(kernel, [(dims, inputs), ...]): its launch of slabs at once on `threads` CPU threads;
+        parallel: those threads (core/threads.py); counter: the simulation's launch counter, which the
+        replayed launches of the line kernels add to."""
         if preconditioner not in self.PRECONDITIONERS:
             raise ValueError(f"preconditioner {preconditioner!r}: use one of {self.PRECONDITIONERS}")
         self.grid, self.device, self.preconditioner = grid, device, preconditioner
@@ -328,6 +333,10 @@ class ViscousSolver:
         self.mu_around = [self._around(a, self.mu_cell, self.mu_edge) for a in grid.axes]
         # The shear stresses on the edges; the normal ones are computed in place from mu at the cells.
         self.tau_around = [self._around(a, self.mu_cell, self.tau_edge) for a in grid.axes]
+        self._parallel = parallel or Parallel(self.threads)
+        self._counter = counter
+        self._recorded = {}  # the line kernels' recorded launches, by kernel, shape and arrays (_walk)
+        self.multigrid = None  # one V-cycle per component, allocated on first use
 
     def _launch(self, kernel, shape, inputs):
         if self._launcher is not None:
@@ -344,10 +353,37 @@ class ViscousSolver:
             box, dims = make_lines((0, 0, 0), shape, self.dim, self.device)
             split = self.threads > 1 and math.prod(shape) >= SPLIT_FACES
             slabs = self._lines[shape] = split_lines(box, dims, self.threads) if split else [(box, dims)]
-        if len(slabs) == 1:
-            self._launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+        if self._counter is None and self._launcher is not None:  # no counter to add replays to
+            if len(slabs) == 1:
+                self._launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+            else:
+                self._launch_parts(kernel, [(dims, [box, *inputs]) for box, dims in slabs])
+            return
+        self._replay(kernel, shape, slabs, inputs)
+
+    def _replay(self, kernel, shape, slabs, inputs):
+        """Launch recorded once per kernel, shape and arrays, its scalars set at each replay: Warp packs
+        a launch's arguments in Python (about a quarter of the solve's time on the CPU at 80 x 160
+        cells), a replay only the scalars. The slabs run at once on the CPU's threads."""
+        key = (kernel.key, shape, *(arg.ptr if isinstance(arg, wp.array) else None if isinstance(arg, (int, float))
+                                    else id(arg) for arg in inputs))
+        launches = self._recorded.get(key)
+        if launches is None:
+            if len(self._recorded) > MAX_RECORDED:  # arrays reallocated: forget the old ones
+                self._recorded.clear()
+            launches = self._recorded[key] = [wp.launch(kernel, dims, inputs=[box, *inputs], device=self.device,
+                                                        record_cmd=True) for box, dims in slabs]
         else:
-            self._launch_parts(kernel, [(dims, [box, *inputs]) for box, dims in slabs])
+            for index, arg in enumerate(inputs):
+                if isinstance(arg, (int, float)):
+                    for launch in launches:
+                        launch.set_param_at_index(index + 1, arg)
+        if self._counter is not None:
+            self._counter[kernel.key] += len(launches)
+        if len(launches) == 1:
+            launches[0].launch()
+        else:
+            self._parallel.run([launch.launch for launch in launches])
 
     def _around(self, a: int, cells, edges: dict) -> AroundFace:
         """The quantity on `cells` and on the edges of the planes through axis a (edges: by plane);
@@ -425,40 +461,83 @@ class ViscousSolver:
         self.dots.zero_()
         return self._sweeps(dt, (BLACK, RED))
 
+    def _build_multigrid(self, inv_rho, dt: float):
+        """Each component's V-cycle for this solve, over its unknown faces' box (prepare() has set
+        the diagonal for this dt)."""
+        if self.multigrid is None:
+            self.multigrid = [FaceMultigrid(self.r[a].shape, a, self.dim, self.device, parallel=self._parallel)
+                              for a in self.grid.axes]
+        scale = float(dt) * self.inv_dx * self.inv_dx
+        self._cycled = []  # the components with unknowns (the others keep z = 0)
+        for a, mg in zip(self.grid.axes, self.multigrid):
+            box = unknowns_box(inv_rho[a], self.dim)
+            self.z[a].zero_()
+            if box is not None:
+                mg.build_faces(scale, inv_rho[a], self.diag[a], self.mu_around[a], box)
+                self._cycled.append(a)
+
+    def _v_cycles(self) -> float:
+        """z = M^-1 r by a V-cycle per component; returns r . z."""
+        self.dots.zero_()
+        for a in self._cycled:
+            self.multigrid[a].apply(self.r[a], self.z[a])
+            self._walk(dot_rz, self.r[a].shape, [self.r[a], self.z[a], self.dots])
+        return float(self._sums()[2])
+
+    def _first_direction(self, dt: float) -> float:
+        """d = z = M^-1 r for the preconditioners that pcg_start does not apply (its z is the diagonal's);
+        returns r . z."""
+        if self.preconditioner == "sgs":  # from z = 0: red, black, red
+            for a in self.grid.axes:
+                self.z[a].zero_()
+            self._sweeps(dt, (RED,))
+            rz = self._last_sweeps(dt)
+        else:
+            rz = self._v_cycles()
+        for a in self.grid.axes:
+            wp.copy(self.d[a], self.z[a])
+        return rz
+
+    def _step(self, alpha: float):
+        """x += alpha d, r -= alpha A d and what of z = M^-1 r the update's kernel makes; (r . r, r . z)."""
+        x = self.delta
+        if self.preconditioner == "sgs":  # the update's red z = r / diag is the sweep's first half-sweep
+            return self._pcg_dots(pcg_update, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a], self.r[a],
+                                                         self.z[a]])
+        if self.preconditioner == "multigrid":
+            return self._pcg_dots(pcg_residual, lambda a: [alpha, self.d[a], self.Ad[a], x[a], self.r[a]])
+        return self._pcg_dots(pcg_step, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a], self.r[a],
+                                                   self.z[a]])
+
     def implicit(self, types, inv_rho, vel, dt: float, tol: float, max_iter: int) -> SolveInfo:
         """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by PCG on
         the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter through
         u*). prepare() must have run with this dt."""
         b, x = self.tmp, self.delta
-        sgs = self.preconditioner == "sgs"
+        pre = self.preconditioner
         self.apply(RHS, types, inv_rho, vel, dt, b)
         rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
         b_norm = math.sqrt(rr)
         it, rel = 0, 0.0
         if b_norm > 0.0:
             rel = 1.0
-            if sgs:  # from z = 0: red, black, red
-                for a in self.grid.axes:
-                    self.z[a].zero_()
-                self._sweeps(dt, (RED,))
-                rz = self._last_sweeps(dt)
-                for a in self.grid.axes:
-                    wp.copy(self.d[a], self.z[a])
+            if pre == "multigrid":
+                self._build_multigrid(inv_rho, dt)
+            if pre != "jacobi":
+                rz = self._first_direction(dt)
             while rel > tol and it < max_iter:
                 dAd = self.apply(OPERATOR, types, inv_rho, self.d, dt, self.Ad)
                 if dAd <= 0.0:
                     break  # round-off at convergence
-                alpha = float(rz / dAd)
-                # sgs: the update's red z = r / diag is the sweep's first half-sweep; black, red follow.
-                step = (pcg_update if sgs else pcg_step, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a],
-                                                                    self.r[a], self.z[a]])
-                rr, rz_new = self._pcg_dots(*step)
+                rr, rz_new = self._step(float(rz / dAd))
                 it += 1
                 rel = math.sqrt(rr) / b_norm
                 if rel <= tol:
                     break  # converged: no next direction needed
-                if sgs:
+                if pre == "sgs":
                     rz_new = self._last_sweeps(dt)
+                elif pre == "multigrid":
+                    rz_new = self._v_cycles()
                 for a in self.grid.axes:
                     self._walk(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
                 rz = rz_new

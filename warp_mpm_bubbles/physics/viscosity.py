@@ -49,6 +49,15 @@ class ViscosityStage(Stage):
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False
 
+    def state_arrays(self) -> dict:
+        """The rate, and the implicit solve's warm start once it has one (a resumed run takes the
+        steps and iterations of one that never stopped)."""
+        return {**super().state_arrays(), **self.solver.guess_arrays()}
+
+    def load_state(self, arrays: dict) -> None:
+        super().load_state(arrays)
+        self.solver.load_guess(arrays)
+
     def explicit_limit(self, ctx) -> float:
         """Forward Euler's largest stable step on the last grid seen (s)."""
         rate = self.state.rate

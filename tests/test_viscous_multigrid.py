@@ -35,21 +35,19 @@ def v_cycle_matrix(dim):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_v_cycle_is_symmetric_positive_definite(dim):
-    # Symmetric to float32 round-off (measured 2e-7 of its largest entry in 2D, 3e-7 in 3D) and
-    # positive definite, and a useful approximation of the component blocks' inverse: M^-1 A's
-    # condition number well below A's own (measured 2D: 5.3 against 50, 3D: 6.6 against 77).
-    # Dropping the mirror and wall terms from the finest level's `dirichlet` (0 in face_level)
-    # leaves it symmetric but gives 2D: 6.9, 3D: 9.2 and moves the pinned counts below.
+    # Symmetric to float32 round-off (measured 3e-9 of its largest entry) and positive definite,
+    # and close to the component blocks' inverse: the condition number of M^-1 A measured 2.1 (2D)
+    # and 2.4 (3D), against 149 and 226 for A's own.
     A, M_inv, unknowns = v_cycle_matrix(dim)
     axis = np.array([a for a, _ in unknowns])
     assert np.all(M_inv[axis[:, None] != axis[None, :]] == 0.0)  # one V-cycle per component
     asym = np.abs(M_inv - M_inv.T).max() / np.abs(M_inv).max()
     sym = 0.5 * (M_inv + M_inv.T)
-    assert asym < 2e-6, asym
+    assert asym < 1e-6, asym
     assert np.linalg.eigvalsh(sym).min() > 0.0
     ev = np.sort(np.real(np.linalg.eigvals(sym @ A)))
     print(f"{dim}D: asymmetry {asym:.1e}, cond(M^-1 A) {ev[-1] / ev[0]:.1f}, cond(A) {np.linalg.cond(A):.0f}")
-    assert ev[0] > 0.0 and ev[-1] / ev[0] < 0.25 * np.linalg.cond(A)
+    assert ev[0] > 0.0 and ev[-1] / ev[0] < 3.0
 
 
 def solve_twice(dim, preconditioner, dt, warm, size, seed=5, max_iter=500):
@@ -72,29 +70,37 @@ def solve_twice(dim, preconditioner, dt, warm, size, seed=5, max_iter=500):
 
 # Exact PCG iteration counts on seeded problems (100:1 viscosities, densities 1 to 1000, random
 # EMPTY cells, no-slip and free-slip walls), to a relative residual of 1e-6: dt 0.3 is the
-# moderate case, dt 3 the stiff one (viscosity dominates rho/dt). Each count has a margin: the
-# residual is at least 1.3x below tol at the counted iteration and 1.3x above it one iteration
-# earlier (measured), so float rounding cannot move it. Deliberate errors measured: the V-cycle's
-# coarse Laplacian scale 0.5 -> 0.7 (a restriction's weight off) moves 2d_multigrid_cold 8 -> 9 and
-# 3d_multigrid_cold 10 -> 11; the symmetric Gauss-Seidel's update relaxed to 0.9 of the Gauss-Seidel
-# value (a smoother weight) moves 2d_sgs_cold 8 -> 9 and 3d_sgs_warm_stiff 12 -> 13.
-ITERATION_PINS = {  # id: (dim, preconditioner, dt, warm start, iterations)
-    "2d_sgs_cold": (2, "sgs", 0.3, False, 8),
-    "2d_sgs_warm": (2, "sgs", 0.3, True, 5),
-    "2d_jacobi_warm": (2, "jacobi", 0.3, True, 8),
-    "2d_multigrid_cold": (2, "multigrid", 0.3, False, 8),
-    "2d_multigrid_warm_stiff": (2, "multigrid", 3.0, True, 9),
-    "3d_multigrid_cold": (3, "multigrid", 0.3, False, 10),
-    "3d_multigrid_warm_stiff": (3, "multigrid", 3.0, True, 11),
-    "3d_sgs_warm_stiff": (3, "sgs", 3.0, True, 12),
+# moderate case, dt 3 the stiff one (viscosity dominates rho/dt). The block preconditioners are
+# capped by the cross terms they leave out (the exact inverse of the component blocks needs 10 and
+# 14 iterations on the small 2D and 3D problems), so an error in a preconditioner moves a count by
+# a few percent of the residual: these problems were chosen where the deliberate errors below move
+# one. Margins (residual at the counted iteration below tol, and one iteration earlier above it):
+# at least 1.05x, where float32 rounding moves a residual by about 1e-6 of itself. On the CPU the
+# counts are deterministic. Deliberate errors measured (each fails at least one pin):
+#   symmetric Gauss-Seidel update relaxed to 0.9 x its value (sgs_sweep): 2d_sgs_cold 8 -> 9,
+#     2d_sgs_cold_stiff 16 -> 15;
+#   the finest level's normal coupling 2 mu_c -> 1.8 mu_c (face_level): 2d_multigrid_cold_stiff 13 -> 14,
+#     3d_multigrid_cold_stiff 19 -> 20, 3d_multigrid_warm_stiff 10 -> 9;
+#   the V-cycle's restriction weighted 0.9 (core/multigrid.py restrict_residual): 2d_multigrid_cold_stiff
+#     13 -> 14; its smoother's update relaxed to 0.9 (smooth): 3d_multigrid_cold_stiff 19 -> 20,
+#     3d_multigrid_warm_stiff 10 -> 9.
+ITERATION_PINS = {  # id: (dim, preconditioner, dt, warm start, seed, iterations)
+    "2d_sgs_cold": (2, "sgs", 0.3, False, 7, 8),
+    "2d_sgs_cold_stiff": (2, "sgs", 3.0, False, 5, 16),
+    "2d_sgs_warm": (2, "sgs", 0.3, True, 5, 5),
+    "2d_multigrid_cold_stiff": (2, "multigrid", 3.0, False, 5, 13),
+    "2d_multigrid_warm_stiff": (2, "multigrid", 3.0, True, 5, 9),
+    "3d_multigrid_cold_stiff": (3, "multigrid", 3.0, False, 5, 19),
+    "3d_multigrid_warm_stiff": (3, "multigrid", 3.0, True, 7, 10),
+    "3d_sgs_warm_stiff": (3, "sgs", 3.0, True, 5, 12),
 }
 SIZES = {2: (40, 30, 1), 3: (14, 12, 10)}
 
 
 @pytest.mark.parametrize("case", list(ITERATION_PINS))
 def test_iteration_counts_are_pinned(case):
-    dim, preconditioner, dt, warm, expected = ITERATION_PINS[case]
-    info, _ = solve_twice(dim, preconditioner, dt, warm, SIZES[dim])
+    dim, preconditioner, dt, warm, seed, expected = ITERATION_PINS[case]
+    info, _ = solve_twice(dim, preconditioner, dt, warm, SIZES[dim], seed=seed)
     assert info.converged
     assert info.iterations == expected, f"{case}: {info.iterations} PCG iterations, pinned at {expected}"
 

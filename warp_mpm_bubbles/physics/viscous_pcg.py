@@ -18,6 +18,7 @@ from ..core.lines import Lines, line_end, line_first
 wp.set_module_options({"enable_backward": False})
 
 RED, BLACK = 0, 1  # the faces' colours, the parity of i + j + k
+OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes (physics/viscous_solve.py)
 
 
 @wp.func

@@ -25,21 +25,17 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import warp as wp
 
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
 from ..core.cells import cell_type_at, is_solid, unit
 from ..core.lines import Lines, line_end, line_first, make_lines, split_lines
-from ..core.pressure import SolveInfo
 from ..core.threads import SPLIT_CELLS, Parallel
-from .viscous_multigrid import FaceMultigrid, dot_rz, pcg_residual, unknowns_box
-from .viscous_pcg import (BLACK, RED, AroundFace, add_into, guess_start, pcg_direction, pcg_restart, pcg_start, pcg_step,
-                          pcg_update, sgs_sweep, value_at)
+from .viscous_iterate import ImplicitSolve
+from .viscous_pcg import EXPLICIT, OPERATOR, RED, RHS, AroundFace, value_at  # noqa: F401 (RED: for the tests)
 
 wp.set_module_options({"enable_backward": False})
 
-OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
 # An array of this many faces (or edges) runs in slabs on the CPU's threads: the pressure solve's
 # threshold. Splitting from 4096 faces doubled the stage's time on a 1000:1 tank at 80 cells (12 s
 # against 6 s, 120 steps) on a shared two-core machine, where the hand-off waits for a core.
@@ -287,20 +283,10 @@ def face_diagonal(a: int, inv_dx2: float, dt: float, types: wp.array3d(dtype=wp.
     wp.atomic_max(rate, 0, ir * row * inv_dx2)
 
 
-class ViscousSolver:
-    """The stress operator on one grid: viscosities, explicit step, implicit PCG. Scratch arrays are
-    allocated once; dot products accumulate in float64 (deterministic on the CPU).
-
-    The preconditioner ("sgs", the default): one symmetric Gauss-Seidel sweep of each component's own
-    block of the matrix (the normal and shear stress coupling a face to the faces of its own axis;
-    the cross terms du_b/dx_a between components are left out, so M is block diagonal and, like A,
-    symmetric positive definite, as PCG needs). Faces are coloured red and black by the parity of
-    i + j + k: every face a face couples to in its block is one index away, so of the other colour,
-    and from z = 0 the half-sweeps red, black, red are forward then backward Gauss-Seidel (the
-    backward black sweep would repeat the forward one). Each half-sweep reads only the other colour,
-    so its result does not depend on the threads' order. "jacobi": the diagonal alone."""
-
-    PRECONDITIONERS = ("sgs", "jacobi", "multigrid")
+class ViscousSolver(ImplicitSolve):
+    """The stress operator on one grid: viscosities, explicit step, implicit PCG (its iteration and
+    preconditioners: physics/viscous_iterate.py). Scratch arrays are allocated once; dot products
+    accumulate in float64 (deterministic on the CPU)."""
 
     def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1,
                  parallel=None, counter=None):
@@ -338,10 +324,7 @@ class ViscousSolver:
         self._counter = counter
         self._recorded = {}  # the line kernels' recorded launches, by kernel, shape and arrays (_walk)
         self.multigrid = None  # one V-cycle per component, allocated on first use
-        # Warm start: the PCG starts from the last solve's change (delta, scaled by the ratio of the
-        # steps), which the flow keeps nearly steady from step to step: a quarter fewer iterations on
-        # the 1000:1 tank at 80 cells (docs/viscosity.md). A checkpoint keeps it (guess_arrays).
-        self.warm_start = True
+        self.warm_start = True  # start from the last solve's change (physics/viscous_iterate.py)
         self._guess_dt = 0.0  # the dt of the change self.delta holds (0: none)
 
     def _launch(self, kernel, shape, inputs):
@@ -443,148 +426,3 @@ class ViscousSolver:
     def _sums(self):
         """The three dot products: the planes' partial sums added in plane order."""
         return self.dots.numpy().sum(axis=0)
-
-    def _pcg_dots(self, kernel, inputs_of):
-        self.dots.zero_()
-        for a in self.grid.axes:
-            self._walk(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
-        _, rr, rz = self._sums()
-        return float(rr), float(rz)
-
-    def _sweeps(self, dt: float, colours) -> float:
-        """Gauss-Seidel half-sweeps of z = M^-1 r, colour by colour; returns the r . z they add to
-        dots[2] (each face's last value: the half-sweeps that end M^-1 visit every face once)."""
-        scale = float(dt) * self.inv_dx * self.inv_dx
-        for a in self.grid.axes:
-            for colour in colours:
-                self._walk(sgs_sweep, self.z[a].shape, [colour, a, scale, self.mu_around[a], self.diag[a], self.r[a],
-                                                        self.z[a], self.dots])
-        return float(self._sums()[2])
-
-    def _last_sweeps(self, dt: float) -> float:
-        """After the red half-sweep: black, red, as many times as self.sweeps (symmetric Gauss-Seidel
-        iterations); r . z from the last pair, which sets every face's final value."""
-        for _ in range(self.sweeps - 1):
-            self._sweeps(dt, (BLACK, RED))
-        self.dots.zero_()
-        return self._sweeps(dt, (BLACK, RED))
-
-    def _build_multigrid(self, inv_rho, dt: float):
-        """Each component's V-cycle for this solve, over its unknown faces' box (prepare() has set
-        the diagonal for this dt)."""
-        if self.multigrid is None:
-            self.multigrid = [FaceMultigrid(self.r[a].shape, a, self.dim, self.device, parallel=self._parallel)
-                              for a in self.grid.axes]
-        scale = float(dt) * self.inv_dx * self.inv_dx
-        self._cycled = []  # the components with unknowns (the others keep z = 0)
-        for a, mg in zip(self.grid.axes, self.multigrid):
-            box = unknowns_box(inv_rho[a], self.dim)
-            self.z[a].zero_()
-            if box is not None:
-                mg.build_faces(scale, inv_rho[a], self.diag[a], self.mu_around[a], box)
-                self._cycled.append(a)
-
-    def _v_cycles(self) -> float:
-        """z = M^-1 r by a V-cycle per component; returns r . z."""
-        self.dots.zero_()
-        for a in self._cycled:
-            self.multigrid[a].apply(self.r[a], self.z[a])
-            self._walk(dot_rz, self.r[a].shape, [self.r[a], self.z[a], self.dots])
-        return float(self._sums()[2])
-
-    def _first_direction(self, dt: float) -> float:
-        """d = z = M^-1 r for the preconditioners that pcg_start does not apply (its z is the diagonal's);
-        returns r . z."""
-        if self.preconditioner == "sgs":  # from z = 0: red, black, red
-            for a in self.grid.axes:
-                self.z[a].zero_()
-            self._sweeps(dt, (RED,))
-            rz = self._last_sweeps(dt)
-        else:
-            rz = self._v_cycles()
-        for a in self.grid.axes:
-            wp.copy(self.d[a], self.z[a])
-        return rz
-
-    def _step(self, alpha: float):
-        """x += alpha d, r -= alpha A d and what of z = M^-1 r the update's kernel makes; (r . r, r . z)."""
-        x = self.delta
-        if self.preconditioner == "sgs":  # the update's red z = r / diag is the sweep's first half-sweep
-            return self._pcg_dots(pcg_update, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a], self.r[a],
-                                                         self.z[a]])
-        if self.preconditioner == "multigrid":
-            return self._pcg_dots(pcg_residual, lambda a: [alpha, self.d[a], self.Ad[a], x[a], self.r[a]])
-        return self._pcg_dots(pcg_step, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a], self.r[a],
-                                                   self.z[a]])
-
-    def guess_arrays(self) -> dict:
-        """The warm start's guess by checkpoint name (none before the first implicit solve)."""
-        if self._guess_dt <= 0.0:
-            return {}
-        out = {"viscous_guess_dt": np.array([self._guess_dt], np.float64)}
-        for a in self.grid.axes:
-            out[f"viscous_guess_{'xyz'[a]}"] = self.delta[a].numpy()
-        return out
-
-    def load_guess(self, arrays: dict):
-        """Take back guess_arrays' values (a checkpoint without them: start cold, as before)."""
-        if "viscous_guess_dt" not in arrays:
-            return
-        for a in self.grid.axes:
-            self.delta[a].assign(np.asarray(arrays[f"viscous_guess_{'xyz'[a]}"], np.float32))
-        self._guess_dt = float(arrays["viscous_guess_dt"][0])
-
-    def _start(self, types, inv_rho, dt: float):
-        """r = b - A x, d = the Jacobi direction, from x = 0, or from the last solve's change (warm
-        start); returns (|b|, r . r, r . d). b = self.tmp holds the right-hand side."""
-        b, x = self.tmp, self.delta
-        if not (self.warm_start and self._guess_dt > 0.0):
-            rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
-            return math.sqrt(rr), rr, rz
-        for a in self.grid.axes:
-            self._walk(guess_start, x[a].shape, [float(dt / self._guess_dt), inv_rho[a], x[a]])
-        self.apply(OPERATOR, types, inv_rho, x, dt, self.Ad)
-        self.dots.zero_()
-        for a in self.grid.axes:
-            self._walk(pcg_restart, x[a].shape, [b[a], self.Ad[a], self.diag[a], self.r[a], self.d[a], self.dots])
-        bb, rr, rz = (float(v) for v in self._sums())
-        return math.sqrt(bb), rr, rz
-
-    def implicit(self, types, inv_rho, vel, dt: float, tol: float, max_iter: int) -> SolveInfo:
-        """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by PCG on
-        the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter through
-        u*). prepare() must have run with this dt."""
-        b, x = self.tmp, self.delta
-        pre = self.preconditioner
-        self.apply(RHS, types, inv_rho, vel, dt, b)
-        b_norm, rr, rz = self._start(types, inv_rho, dt)
-        self._guess_dt = float(dt)
-        it, rel = 0, 0.0
-        if b_norm == 0.0:
-            for a in self.grid.axes:
-                x[a].zero_()
-        else:
-            rel = math.sqrt(rr) / b_norm
-            if pre == "multigrid" and rel > tol:
-                self._build_multigrid(inv_rho, dt)
-            if pre != "jacobi" and rel > tol:
-                rz = self._first_direction(dt)
-            while rel > tol and it < max_iter:
-                dAd = self.apply(OPERATOR, types, inv_rho, self.d, dt, self.Ad)
-                if dAd <= 0.0:
-                    break  # round-off at convergence
-                rr, rz_new = self._step(float(rz / dAd))
-                it += 1
-                rel = math.sqrt(rr) / b_norm
-                if rel <= tol:
-                    break  # converged: no next direction needed
-                if pre == "sgs":
-                    rz_new = self._last_sweeps(dt)
-                elif pre == "multigrid":
-                    rz_new = self._v_cycles()
-                for a in self.grid.axes:
-                    self._walk(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
-                rz = rz_new
-            for a in self.grid.axes:
-                self._walk(add_into, vel[a].shape, [x[a], vel[a]])
-        return SolveInfo(it, rel, rel <= tol)

@@ -121,9 +121,11 @@ class ImplicitSolve:
         """The warm start's guess by checkpoint name (none before the first implicit solve)."""
         if self._guess_dt <= 0.0:
             return {}
-        out = {"viscous_guess_dt": np.array([self._guess_dt], np.float64)}
+        out = {"viscous_guess_dt": np.array([self._guess_dt], np.float64),
+               "viscous_previous_dt": np.array([self._previous_dt], np.float64)}
         for a in self.grid.axes:
             out[f"viscous_guess_{'xyz'[a]}"] = self.delta[a].numpy()
+            out[f"viscous_previous_{'xyz'[a]}"] = self.previous[a].numpy()
         return out
 
     def load_guess(self, arrays: dict):
@@ -132,7 +134,17 @@ class ImplicitSolve:
             return
         for a in self.grid.axes:
             self.delta[a].assign(np.asarray(arrays[f"viscous_guess_{'xyz'[a]}"], np.float32))
+            self.previous[a].assign(np.asarray(arrays[f"viscous_previous_{'xyz'[a]}"], np.float32))
         self._guess_dt = float(arrays["viscous_guess_dt"][0])
+        self._previous_dt = float(arrays["viscous_previous_dt"][0])
+
+    def _extrapolation(self, dt: float):
+        """The guess's weights: the change per second, delta / dt, extrapolated linearly in time from
+        the last two solves (the last one alone after a cold start), times this dt."""
+        ratio = dt / self._guess_dt
+        if self._previous_dt <= 0.0:
+            return float(ratio), 0.0
+        return float(ratio * (1.0 + ratio)), float(ratio * dt / self._previous_dt)
 
     def _start(self, types, inv_rho, dt: float):
         """r = b - A x, d = the Jacobi direction, from x = 0, or from the last solve's change (warm
@@ -141,8 +153,10 @@ class ImplicitSolve:
         if not (self.warm_start and self._guess_dt > 0.0):
             rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
             return math.sqrt(rr), rr, rz
+        c1, c2 = self._extrapolation(dt)
         for a in self.grid.axes:
-            self._walk(guess_start, x[a].shape, [float(dt / self._guess_dt), inv_rho[a], x[a]])
+            self._walk(guess_start, x[a].shape, [c1, c2, inv_rho[a], x[a], self.previous[a]])
+        self._previous_dt = self._guess_dt
         self.apply(OPERATOR, types, inv_rho, x, dt, self.Ad)
         self.dots.zero_()
         for a in self.grid.axes:

@@ -203,8 +203,10 @@ def add_into(walk: Lines, delta: wp.array3d(dtype=float), vel: wp.array3d(dtype=
 
 
 @wp.kernel
-def guess_start(walk: Lines, scale: float, inv_rho: wp.array3d(dtype=float), x: wp.array3d(dtype=float)):
-    """x = scale x on the unknown faces (the last solve's change, rescaled to this step), 0 elsewhere."""
+def guess_start(walk: Lines, c1: float, c2: float, inv_rho: wp.array3d(dtype=float), x: wp.array3d(dtype=float),
+                previous: wp.array3d(dtype=float)):
+    """x = c1 x - c2 previous on the unknown faces, 0 elsewhere (the last two solves' changes
+    extrapolated to this step), and previous = the last change."""
     ti, tj, tk = wp.tid()
     first = line_first(walk, ti, tj, tk)
     s0 = first[walk.axis]
@@ -214,9 +216,11 @@ def guess_start(walk: Lines, scale: float, inv_rho: wp.array3d(dtype=float), x: 
         i = first[0]
         j = first[1] + (line_s - s0) * a1
         k = first[2] + (line_s - s0) * a2
+        last = x[i, j, k]
         v = float(0.0)
         if inv_rho[i, j, k] > 0.0:
-            v = scale * x[i, j, k]
+            v = c1 * last - c2 * previous[i, j, k]
+        previous[i, j, k] = last
         x[i, j, k] = v
 
 

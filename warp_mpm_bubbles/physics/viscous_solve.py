@@ -311,7 +311,7 @@ class ViscousSolver(ImplicitSolve):
         self.mu_cell = zeros(cells)
         self.mu_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
         self.tau_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
-        self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
+        self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp, self.previous = (faces() for _ in range(8))
         # Dot products: each line adds its sum to its plane's row (a plane along x lies in one slab),
         # and the host adds the rows in order, so the sums do not depend on the slabs (core/threads.py).
         self.dots = wp.zeros((max(grid.face_shape(a)[0] for a in grid.axes), 3), dtype=wp.float64, device=device)
@@ -326,6 +326,7 @@ class ViscousSolver(ImplicitSolve):
         self.multigrid = None  # one V-cycle per component, allocated on first use
         self.warm_start = True  # start from the last solve's change (physics/viscous_iterate.py)
         self._guess_dt = 0.0  # the dt of the change self.delta holds (0: none)
+        self._previous_dt = 0.0  # the dt of the one before it, in self.previous (0: none)
 
     def _launch(self, kernel, shape, inputs):
         if self._launcher is not None:

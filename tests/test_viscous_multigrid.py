@@ -125,15 +125,17 @@ def test_every_start_and_preconditioner_gives_the_same_answer(dim):
 
 def test_a_resumed_implicit_run_continues_the_warm_start(tmp_path):
     # The warm start's guess is the last solve's change: a checkpoint keeps it, so a resumed run
-    # takes the iterations and gives the particles of one that never stopped. (Without the guess
-    # in the checkpoint, load_guess returning at once, the resumed run starts cold: 2 more PCG
-    # iterations in the first step and different bits.)
+    # takes the iterations and gives the particles of one that never stopped. Deliberate errors:
+    # load_guess returning at once (a cold start after the resume) or not loading the previous
+    # change (another extrapolation) each fail it.
     from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
 
     whole, first, resumed = (honey_drop(tmp_path / name, "implicit", 0.0, fps=2500)[0] for name in "abc")
-    for _ in range(2):
+    for _ in range(4):  # a step a frame: the checkpoint after 3 solves, so the guess extrapolates two
         whole.advance_frame()
-    first.advance_frame()
+    for _ in range(3):
+        first.advance_frame()
+    assert first.stage("viscosity").solver.guess_arrays()["viscous_previous_dt"][0] > 0.0
     save_checkpoint(first, tmp_path / "c.npz")
     load_checkpoint(resumed, tmp_path / "c.npz")
     before = dict(resumed.stage("viscosity").counts)

@@ -83,7 +83,9 @@ def solve_twice(dim, preconditioner, dt, warm, size, seed=5, max_iter=500):
 #     3d_multigrid_cold_stiff 19 -> 20, 3d_multigrid_warm_stiff 10 -> 9;
 #   the V-cycle's restriction weighted 0.9 (core/multigrid.py restrict_residual): 2d_multigrid_cold_stiff
 #     13 -> 14; its smoother's update relaxed to 0.9 (smooth): 3d_multigrid_cold_stiff 19 -> 20,
-#     3d_multigrid_warm_stiff 10 -> 9.
+#     3d_multigrid_warm_stiff 10 -> 9 (and the V-cycle test above: asymmetry 1e-3);
+#   the V-cycle's upward sweeps in the downward order (red, black: no longer symmetric): three pins
+#     (19 -> 16 in 3D) and the V-cycle test above (asymmetry 1e-2).
 ITERATION_PINS = {  # id: (dim, preconditioner, dt, warm start, seed, iterations)
     "2d_sgs_cold": (2, "sgs", 0.3, False, 7, 8),
     "2d_sgs_cold_stiff": (2, "sgs", 3.0, False, 5, 16),

@@ -14,16 +14,18 @@ Preconditioners (ViscousSolver.preconditioner):
   sweep would repeat the forward one). Each half-sweep reads only the other colour, so its result
   does not depend on the threads' order. `sweeps` repeats the (black, red) pair.
 - "multigrid": a V-cycle of each component's block (physics/viscous_multigrid.py). Fewer iterations
-  (7 against 10 on the 1000:1 tank at 80 cells) but each V-cycle costs about six of the sweep
-  above, so it is slower there (docs/viscosity.md, "Measured"); kept for stiffer systems.
+  (5.1 against 7.5 a solve on the 1000:1 tank at 80 cells) but a V-cycle costs about six of the
+  half-sweeps above, so the stage takes about twice the time there (docs/viscosity.md, "Measured").
 - "jacobi": the diagonal alone.
 
-Warm start (`warm_start`, on by default): the PCG starts from the last solve's change delta, scaled
-by the ratio of the steps; the flow keeps it nearly steady from step to step, so the first residual
-is small (a quarter fewer iterations on the 1000:1 tank at 80 cells, a sixth on Hysing's case 1).
-The tolerance stays relative to the right-hand side, so the answer is that of a cold start to the
-tolerance. A checkpoint keeps the guess (guess_arrays), so a resumed run iterates as one that never
-stopped.
+Warm start (`warm_start`, on by default): the PCG starts from a guess of the change delta, the last
+two solves' changes per second extrapolated linearly in time to this step (the last one alone after
+the first solve), scaled by gamma = b.g / g.A g: the multiple of the guess closest to the solution
+in the energy norm, so never further from it than a cold start. At low Reynolds numbers the change
+moves slowly from step to step: 11.7 -> 7.5 iterations a solve on the 1000:1 tank at 80 cells, 6.0
+-> 5.0 on Hysing's case 1 at 40 (docs/viscosity.md, "Measured"). The tolerance stays relative to the
+right-hand side, so the answer is a cold start's to the tolerance. A checkpoint keeps both changes
+(guess_arrays), so a resumed run iterates as one that never stopped.
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@
     python -m benchmarks.performance.viscous_solver --quick      # 10 cells, a few ms of simulated time
     python -m benchmarks.performance.viscous_solver --hysing 40 --label hysing40   # Hysing case 1 to t = 3 only
     python -m benchmarks.performance.viscous_solver --hysing 80 --hysing-t-end 0.3 --density-ratio 1000 --label ratio1000_80
+    python -m benchmarks.performance.viscous_solver --hysing 80 --hysing-t-end 1.0 --label hysing80   # t = 1 of 3
 
 tank: the case the implicit solve was built for. A closed 2D tank W x 2W filled with liquid (no-slip top and bottom,
     free-slip sides), an incompressible-gas bubble of radius W/4 at (W/2, W/2): Hysing et al.
@@ -20,9 +21,11 @@ taylor_green: the low-viscosity case. The Taylor-Green cell of tests/test_viscos
     32 cells) at the stress form's explicit limit, where explicit needs no extra steps.
 
 For each: steps, wall time, the viscosity stage's seconds and share of the step (the run's stage
-timer), the implicit solve's PCG iterations, and the state at the end (bubble centroid height and
-rise speed; Taylor-Green amplitude) to show the solvers agree. The implicit solve runs with each
-preconditioner ("sgs", the default, and "jacobi", the diagonal it replaced), side by side.
+timer) and its CPU seconds (the process's, all threads, while the stage ran: on a shared machine wall
+time waits for a core), the implicit solve's PCG iterations, and the state at the end (bubble
+centroid height and rise speed; Taylor-Green amplitude) to show the solvers agree. The implicit solve
+runs with each preconditioner ("sgs", the default; "jacobi", the diagonal it replaced; "multigrid",
+a V-cycle per component), side by side; the Hysing runs also with the warm start off ("cold").
 Writes benchmarks/results/viscous_solver/<device>[_<label>].{json,md}. A measurement, not a test.
 """
 
@@ -88,23 +91,34 @@ def hysing(cells: int, density_ratio: int) -> Scene:
 
 
 def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None = None, device="cpu",
-        preconditioner: str = "sgs", density_ratio: int = 10) -> dict:
+        preconditioner: str = "sgs", density_ratio: int = 10, warm_start: bool = True) -> dict:
     scene = (tank(cells, solver, max_dt) if case == "tank" else taylor_green(cells, solver) if case == "taylor_green"
              else hysing(cells, density_ratio))
     sim = Simulation(scene, device)
-    sim.stage("viscosity").solver.preconditioner = preconditioner
+    stage = sim.stage("viscosity")
+    stage.solver.preconditioner, stage.solver.warm_start = preconditioner, warm_start
+    cpu = [0.0]
+    force = stage.force
+
+    def timed_force(ctx, dt):  # the stage's CPU seconds (process time: every thread)
+        t = time.process_time()
+        force(ctx, dt)
+        cpu[0] += time.process_time() - t
+
+    stage.force = timed_force
     if case == "taylor_green":
         start_taylor_green(sim)
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     sim.advance_to(t_end)
-    wall = time.perf_counter() - start
+    wall, total_cpu = time.perf_counter() - start, time.process_time() - start_cpu
     p = sim.particles_numpy()
-    stage = sim.stage("viscosity")
     seconds = sim.timer.seconds
-    row = {"case": case, "cells": cells, "solver": solver if solver == "explicit" else f"{solver} ({preconditioner})",
+    name = preconditioner if warm_start else f"{preconditioner}, cold"
+    row = {"case": case, "cells": cells, "solver": solver if solver == "explicit" else f"{solver} ({name})",
            "t_end": t_end, "steps": sim.stats.steps, "wall_s": round(wall, 2),
            "ms_per_step": round(1e3 * wall / sim.stats.steps, 2), "viscosity_s": round(seconds.get("viscosity", 0.0), 2),
-           "viscosity_share": seconds.get("viscosity", 0.0) / sum(seconds.values()), **stage.counts,
+           "viscosity_share": seconds.get("viscosity", 0.0) / sum(seconds.values()),
+           "viscosity_cpu_s": round(cpu[0], 2), "cpu_s": round(total_cpu, 2), **stage.counts,
            "explicit_limit_s": stage.explicit_limit(sim.ctx)}
     if case != "taylor_green":
         gas = p["phase"] == PHASE_GAS
@@ -115,6 +129,7 @@ def run(case: str, cells: int, solver: str, t_end: float, max_dt: float | None =
 
 
 RUNS = [("explicit", "sgs"), ("implicit", "sgs"), ("implicit", "jacobi")]  # (solver, implicit preconditioner)
+HYSING_RUNS = [("sgs", True), ("sgs", False), ("multigrid", True)]  # (preconditioner, warm start)
 
 
 def main(argv=None):
@@ -135,9 +150,9 @@ def main(argv=None):
     if args.hysing:  # only the Hysing tank, at its default settings, with each preconditioner
         args.cells, args.no_taylor_green = "", True
         for cells in (int(c) for c in args.hysing.split(",")):
-            for pre in ("sgs", "jacobi"):
+            for pre, warm in HYSING_RUNS:
                 rows.append(run(f"hysing_{args.density_ratio}", cells, "auto", args.hysing_t_end, device=args.device,
-                                preconditioner=pre, density_ratio=args.density_ratio))
+                                preconditioner=pre, density_ratio=args.density_ratio, warm_start=warm))
                 print(rows[-1], flush=True)
     for cells in (int(c) for c in args.cells.split(",") if c):
         for solver, pre in RUNS:
@@ -146,12 +161,15 @@ def main(argv=None):
     for solver, pre in () if args.no_taylor_green else RUNS:
         rows.append(run("taylor_green", 32, solver, tg_end, device=args.device, preconditioner=pre))
         print(rows[-1], flush=True)
-    lines = ["| case | cells | solver | steps | wall s | ms/step | viscosity s (share) | PCG its (max) | explicit limit s | "
-             "centroid y | rise speed |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| case | cells | solver | steps | wall s | ms/step | viscosity s (share) | viscosity CPU s (share) | "
+             "PCG its (max) | its/solve | explicit limit s | centroid y | rise speed |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
+        per_solve = r["pcg_iterations"] / max(1, r["implicit_steps"])
         lines.append(f"| {r['case']} | {r['cells']} | {r['solver']} | {r['steps']} | {r['wall_s']} | {r['ms_per_step']} | "
                      f"{r['viscosity_s']} ({100 * r['viscosity_share']:.1f}%) | "
-                     f"{r['pcg_iterations']} ({r['pcg_max_iterations']}) | {r['explicit_limit_s']:.3g} | "
+                     f"{r['viscosity_cpu_s']} ({100 * r['viscosity_cpu_s'] / r['cpu_s']:.1f}%) | "
+                     f"{r['pcg_iterations']} ({r['pcg_max_iterations']}) | {per_solve:.2f} | {r['explicit_limit_s']:.3g} | "
                      f"{r.get('centroid_y', float('nan')):.4f} | {r.get('rise_speed', float('nan')):.4f} |")
     print("\n".join(lines))
     harness.write_result("viscous_solver", args, {"rows": rows}, "\n".join(lines),

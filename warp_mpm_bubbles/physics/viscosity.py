@@ -43,10 +43,20 @@ class ViscosityStage(Stage):
         # The last grid's rate (1/s) sets the next step, so a resumed run needs it: its state.
         self.state = ViscousRate(8 * ctx.grid.dim * nu / ctx.grid.dx**2)
         self.solver = ViscousSolver(ctx.grid, ctx.device, ctx.launch, launch_parts=ctx.launch_parts,
-                                    threads=ctx.launcher.threads)
+                                    threads=ctx.launcher.threads, parallel=ctx.launcher.parallel,
+                                    counter=ctx.launcher.launches)
         self.counts = {"explicit_steps": 0, "implicit_steps": 0, "substeps": 0, "pcg_iterations": 0,
                        "pcg_max_iterations": 0, "pcg_unconverged": 0}
         self._probing = False
+
+    def state_arrays(self) -> dict:
+        """The rate, and the implicit solve's warm start once it has one (a resumed run takes the
+        steps and iterations of one that never stopped)."""
+        return {**super().state_arrays(), **self.solver.guess_arrays()}
+
+    def load_state(self, arrays: dict) -> None:
+        super().load_state(arrays)
+        self.solver.load_guess(arrays)
 
     def explicit_limit(self, ctx) -> float:
         """Forward Euler's largest stable step on the last grid seen (s)."""

@@ -18,6 +18,7 @@ from ..core.lines import Lines, line_end, line_first
 wp.set_module_options({"enable_backward": False})
 
 RED, BLACK = 0, 1  # the faces' colours, the parity of i + j + k
+OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes (physics/viscous_solve.py)
 
 
 @wp.func
@@ -199,3 +200,62 @@ def add_into(walk: Lines, delta: wp.array3d(dtype=float), vel: wp.array3d(dtype=
         j = first[1] + (line_s - s0) * a1
         k = first[2] + (line_s - s0) * a2
         vel[i, j, k] = vel[i, j, k] + delta[i, j, k]
+
+
+@wp.kernel
+def guess_start(walk: Lines, c1: float, c2: float, inv_rho: wp.array3d(dtype=float), b: wp.array3d(dtype=float),
+                x: wp.array3d(dtype=float), previous: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
+    """x = c1 x - c2 previous on the unknown faces, 0 elsewhere (the last two solves' changes
+    extrapolated to this step), and previous = the last change; dots[2] += b . x."""
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        last = x[i, j, k]
+        v = float(0.0)
+        if inv_rho[i, j, k] > 0.0:
+            v = c1 * last - c2 * previous[i, j, k]
+        previous[i, j, k] = last
+        x[i, j, k] = v
+        acc += wp.float64(b[i, j, k] * v)
+    wp.atomic_add(dots, first[0], 2, acc)
+
+
+@wp.kernel
+def pcg_restart(walk: Lines, gamma: float, b: wp.array3d(dtype=float), Ax: wp.array3d(dtype=float),
+                diag: wp.array3d(dtype=float), x: wp.array3d(dtype=float), r: wp.array3d(dtype=float),
+                d: wp.array3d(dtype=float), dots: wp.array2d(dtype=wp.float64)):
+    """From the guess gamma x: x = gamma x, r = b - gamma A x, d = r / diag (Jacobi; 0 off the
+    unknowns); dots[0] += b . b, dots[1] += r . r, dots[2] += r . d."""
+    ti, tj, tk = wp.tid()
+    first = line_first(walk, ti, tj, tk)
+    s0 = first[walk.axis]
+    a1 = int(walk.axis == 1)
+    a2 = int(walk.axis == 2)
+    acc0 = wp.float64(0.0)
+    acc1 = wp.float64(0.0)
+    acc2 = wp.float64(0.0)
+    for line_s in range(s0, line_end(walk, first)):
+        i = first[0]
+        j = first[1] + (line_s - s0) * a1
+        k = first[2] + (line_s - s0) * a2
+        bb = b[i, j, k]
+        x[i, j, k] = gamma * x[i, j, k]
+        res = bb - gamma * Ax[i, j, k]
+        z = float(0.0)
+        if diag[i, j, k] > 0.0:
+            z = res / diag[i, j, k]
+        r[i, j, k] = res
+        d[i, j, k] = z
+        acc0 += wp.float64(bb * bb)
+        acc1 += wp.float64(res * res)
+        acc2 += wp.float64(res * z)
+    wp.atomic_add(dots, first[0], 0, acc0)
+    wp.atomic_add(dots, first[0], 1, acc1)
+    wp.atomic_add(dots, first[0], 2, acc2)

@@ -30,18 +30,17 @@ import warp as wp
 from ..core.grid import EMPTY, FLUID, SOLID_FREE_SLIP
 from ..core.cells import cell_type_at, is_solid, unit
 from ..core.lines import Lines, line_end, line_first, make_lines, split_lines
-from ..core.pressure import SolveInfo
-from ..core.threads import SPLIT_CELLS
-from .viscous_pcg import (BLACK, RED, AroundFace, add_into, pcg_direction, pcg_start, pcg_step, pcg_update, sgs_sweep,
-                          value_at)
+from ..core.threads import SPLIT_CELLS, Parallel
+from .viscous_iterate import ImplicitSolve
+from .viscous_pcg import EXPLICIT, OPERATOR, RED, RHS, AroundFace, value_at  # noqa: F401 (RED: for the tests)
 
 wp.set_module_options({"enable_backward": False})
 
-OPERATOR, RHS, EXPLICIT = 0, 1, 2  # face_operator's modes
 # An array of this many faces (or edges) runs in slabs on the CPU's threads: the pressure solve's
 # threshold. Splitting from 4096 faces doubled the stage's time on a 1000:1 tank at 80 cells (12 s
 # against 6 s, 120 steps) on a shared two-core machine, where the hand-off waits for a core.
 SPLIT_FACES = SPLIT_CELLS
+MAX_RECORDED = 256  # recorded launches kept (ViscousSolver._replay): the PCG needs a few dozen
 
 
 @wp.func
@@ -284,24 +283,17 @@ def face_diagonal(a: int, inv_dx2: float, dt: float, types: wp.array3d(dtype=wp.
     wp.atomic_max(rate, 0, ir * row * inv_dx2)
 
 
-class ViscousSolver:
-    """The stress operator on one grid: viscosities, explicit step, implicit PCG. Scratch arrays are
-    allocated once; dot products accumulate in float64 (deterministic on the CPU).
+class ViscousSolver(ImplicitSolve):
+    """The stress operator on one grid: viscosities, explicit step, implicit PCG (its iteration and
+    preconditioners: physics/viscous_iterate.py). Scratch arrays are allocated once; dot products
+    accumulate in float64 (deterministic on the CPU)."""
 
-    The preconditioner ("sgs", the default): one symmetric Gauss-Seidel sweep of each component's own
-    block of the matrix (the normal and shear stress coupling a face to the faces of its own axis;
-    the cross terms du_b/dx_a between components are left out, so M is block diagonal and, like A,
-    symmetric positive definite, as PCG needs). Faces are coloured red and black by the parity of
-    i + j + k: every face a face couples to in its block is one index away, so of the other colour,
-    and from z = 0 the half-sweeps red, black, red are forward then backward Gauss-Seidel (the
-    backward black sweep would repeat the forward one). Each half-sweep reads only the other colour,
-    so its result does not depend on the threads' order. "jacobi": the diagonal alone."""
-
-    PRECONDITIONERS = ("sgs", "jacobi")
-
-    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1):
+    def __init__(self, grid, device, launch=None, preconditioner: str = "sgs", launch_parts=None, threads: int = 1,
+                 parallel=None, counter=None):
         """launch(kernel, shape, inputs): the simulation's, so its launch counter sees these kernels;
-        launch_parts(kernel, [(dims, inputs), ...]): its launch of slabs at once on `threads` CPU threads."""
+        launch_parts(kernel, [(dims, inputs), ...]): its launch of slabs at once on `threads` CPU threads;
+        parallel: those threads (core/threads.py); counter: the simulation's launch counter, which the
+        replayed launches of the line kernels add to."""
         if preconditioner not in self.PRECONDITIONERS:
             raise ValueError(f"preconditioner {preconditioner!r}: use one of {self.PRECONDITIONERS}")
         self.grid, self.device, self.preconditioner = grid, device, preconditioner
@@ -319,7 +311,7 @@ class ViscousSolver:
         self.mu_cell = zeros(cells)
         self.mu_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
         self.tau_edge = {p: zeros(edge_shape(*p)) for p in self.planes}
-        self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp = (faces() for _ in range(7))
+        self.r, self.z, self.d, self.Ad, self.diag, self.delta, self.tmp, self.previous = (faces() for _ in range(8))
         # Dot products: each line adds its sum to its plane's row (a plane along x lies in one slab),
         # and the host adds the rows in order, so the sums do not depend on the slabs (core/threads.py).
         self.dots = wp.zeros((max(grid.face_shape(a)[0] for a in grid.axes), 3), dtype=wp.float64, device=device)
@@ -328,6 +320,13 @@ class ViscousSolver:
         self.mu_around = [self._around(a, self.mu_cell, self.mu_edge) for a in grid.axes]
         # The shear stresses on the edges; the normal ones are computed in place from mu at the cells.
         self.tau_around = [self._around(a, self.mu_cell, self.tau_edge) for a in grid.axes]
+        self._parallel = parallel or Parallel(self.threads)
+        self._counter = counter
+        self._recorded = {}  # the line kernels' recorded launches, by kernel, shape and arrays (_walk)
+        self.multigrid = None  # one V-cycle per component, allocated on first use
+        self.warm_start = True  # start from the last solve's change (physics/viscous_iterate.py)
+        self._guess_dt = 0.0  # the dt of the change self.delta holds (0: none)
+        self._previous_dt = 0.0  # the dt of the one before it, in self.previous (0: none)
 
     def _launch(self, kernel, shape, inputs):
         if self._launcher is not None:
@@ -344,10 +343,39 @@ class ViscousSolver:
             box, dims = make_lines((0, 0, 0), shape, self.dim, self.device)
             split = self.threads > 1 and math.prod(shape) >= SPLIT_FACES
             slabs = self._lines[shape] = split_lines(box, dims, self.threads) if split else [(box, dims)]
-        if len(slabs) == 1:
-            self._launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+        if self._counter is None and self._launcher is not None:  # no counter to add replays to
+            if len(slabs) == 1:
+                self._launch(kernel, slabs[0][1], [slabs[0][0], *inputs])
+            else:
+                self._launch_parts(kernel, [(dims, [box, *inputs]) for box, dims in slabs])
+            return
+        self._replay(kernel, shape, slabs, inputs)
+
+    def _replay(self, kernel, shape, slabs, inputs):
+        """Launch recorded once per kernel, shape and arrays, its scalars set at each replay: Warp packs
+        a launch's arguments in Python (about a quarter of the solve's time on the CPU at 80 x 160
+        cells), a replay only the scalars. The slabs run at once on the CPU's threads."""
+        key = (kernel.key, shape, *(arg.ptr if isinstance(arg, wp.array) else None if isinstance(arg, (int, float))
+                                    else id(arg) for arg in inputs))
+        scalars = [(index + 1, arg) for index, arg in enumerate(inputs) if isinstance(arg, (int, float))]
+        recorded = self._recorded.get(key)
+        if recorded is None:
+            if len(self._recorded) > MAX_RECORDED:  # arrays reallocated: forget the old ones
+                self._recorded.clear()
+            recorded = self._recorded[key] = ([wp.launch(kernel, dims, inputs=[box, *inputs], device=self.device,
+                                                         record_cmd=True) for box, dims in slabs], dict(scalars))
+        launches, last = recorded
+        for index, arg in scalars:  # only those that changed: setting one costs a few microseconds
+            if last[index] != arg:
+                last[index] = arg
+                for launch in launches:
+                    launch.set_param_at_index(index, arg)
+        if self._counter is not None:
+            self._counter[kernel.key] += len(launches)
+        if len(launches) == 1:
+            launches[0].launch()
         else:
-            self._launch_parts(kernel, [(dims, [box, *inputs]) for box, dims in slabs])
+            self._parallel.run([launch.launch for launch in launches])
 
     def _around(self, a: int, cells, edges: dict) -> AroundFace:
         """The quantity on `cells` and on the edges of the planes through axis a (edges: by plane);
@@ -399,69 +427,3 @@ class ViscousSolver:
     def _sums(self):
         """The three dot products: the planes' partial sums added in plane order."""
         return self.dots.numpy().sum(axis=0)
-
-    def _pcg_dots(self, kernel, inputs_of):
-        self.dots.zero_()
-        for a in self.grid.axes:
-            self._walk(kernel, self.r[a].shape, [*inputs_of(a), self.dots])
-        _, rr, rz = self._sums()
-        return float(rr), float(rz)
-
-    def _sweeps(self, dt: float, colours) -> float:
-        """Gauss-Seidel half-sweeps of z = M^-1 r, colour by colour; returns the r . z they add to
-        dots[2] (each face's last value: the half-sweeps that end M^-1 visit every face once)."""
-        scale = float(dt) * self.inv_dx * self.inv_dx
-        for a in self.grid.axes:
-            for colour in colours:
-                self._walk(sgs_sweep, self.z[a].shape, [colour, a, scale, self.mu_around[a], self.diag[a], self.r[a],
-                                                        self.z[a], self.dots])
-        return float(self._sums()[2])
-
-    def _last_sweeps(self, dt: float) -> float:
-        """After the red half-sweep: black, red, as many times as self.sweeps (symmetric Gauss-Seidel
-        iterations); r . z from the last pair, which sets every face's final value."""
-        for _ in range(self.sweeps - 1):
-            self._sweeps(dt, (BLACK, RED))
-        self.dots.zero_()
-        return self._sweeps(dt, (BLACK, RED))
-
-    def implicit(self, types, inv_rho, vel, dt: float, tol: float, max_iter: int) -> SolveInfo:
-        """Backward Euler: solve (rho + dt K) u = rho u* for the unknown faces, in place, by PCG on
-        the change delta = u - u*: (rho + dt K) delta = -dt K u* (the walls' values enter through
-        u*). prepare() must have run with this dt."""
-        b, x = self.tmp, self.delta
-        sgs = self.preconditioner == "sgs"
-        self.apply(RHS, types, inv_rho, vel, dt, b)
-        rr, rz = self._pcg_dots(pcg_start, lambda a: [b[a], self.diag[a], x[a], self.r[a], self.d[a]])
-        b_norm = math.sqrt(rr)
-        it, rel = 0, 0.0
-        if b_norm > 0.0:
-            rel = 1.0
-            if sgs:  # from z = 0: red, black, red
-                for a in self.grid.axes:
-                    self.z[a].zero_()
-                self._sweeps(dt, (RED,))
-                rz = self._last_sweeps(dt)
-                for a in self.grid.axes:
-                    wp.copy(self.d[a], self.z[a])
-            while rel > tol and it < max_iter:
-                dAd = self.apply(OPERATOR, types, inv_rho, self.d, dt, self.Ad)
-                if dAd <= 0.0:
-                    break  # round-off at convergence
-                alpha = float(rz / dAd)
-                # sgs: the update's red z = r / diag is the sweep's first half-sweep; black, red follow.
-                step = (pcg_update if sgs else pcg_step, lambda a: [alpha, self.d[a], self.Ad[a], self.diag[a], x[a],
-                                                                    self.r[a], self.z[a]])
-                rr, rz_new = self._pcg_dots(*step)
-                it += 1
-                rel = math.sqrt(rr) / b_norm
-                if rel <= tol:
-                    break  # converged: no next direction needed
-                if sgs:
-                    rz_new = self._last_sweeps(dt)
-                for a in self.grid.axes:
-                    self._walk(pcg_direction, self.d[a].shape, [self.z[a], float(rz_new / rz), self.d[a]])
-                rz = rz_new
-            for a in self.grid.axes:
-                self._walk(add_into, vel[a].shape, [x[a], vel[a]])
-        return SolveInfo(it, rel, rel <= tol)

@@ -15,9 +15,10 @@ Four measurements, in one process:
   the rest of a step's wall time is the host's), the same for the pressure solve alone with its CG
   iterations (invocations per iteration);
 - the stream bandwidth: numpy copies of 256 MB, on one thread and on two at once (read + write bytes);
-- the peer block (benchmarks/performance/peer_comparison.py's scene): p2g's and g2p's seconds against
-  the bytes each must move at least (at the better of the two stream bandwidths) (each particle field it reads or writes once, PARTICLE_BYTES,
-  plus the grid arrays of its box once), and the CG's seconds per iteration per fluid cell against
+- the peer block (benchmarks/performance/peer_comparison.py's scene): p2g's and g2p's seconds (their
+  stage's, the particles' bounding box included) against the bytes each must move at least (each
+  particle field it reads or writes once, PARTICLE_BYTES, plus the grid's face arrays once) at the
+  better of the two stream bandwidths, and the CG's seconds per iteration per fluid cell against
   the bytes of its passes over the solve's box (CG_BYTES_PER_CELL, an estimate: see below).
 
 The kernel bodies are timed by wrapping Warp's `invoke` (warp._src.context, a private name of Warp

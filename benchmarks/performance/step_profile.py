@@ -22,7 +22,7 @@ Four measurements, in one process:
   the bytes of its passes over the solve's box (CG_BYTES_PER_CELL, an estimate: see below).
 
 The kernel bodies are timed by wrapping Warp's `invoke` (warp._src.context, a private name of Warp
-1.19: the profile says so if it moved). Timing every invocation costs about a microsecond each.
+1.19: a Warp that moved it fails here with an AttributeError). Timing every invocation costs about a microsecond each.
 Writes benchmarks/results/step_profile/<device>[_quick].{json,md}.
 """
 

@@ -5,21 +5,26 @@
     python -m benchmarks.performance.step_profile --quick        # Hysing at 10 cells, a 16^3 peer block
 
 Four measurements, in one process:
-- launch costs: the host's seconds per launch of a kernel that does nothing (a `Lines` box and two
+- launch costs: the host's CPU seconds (every thread's) per launch of a kernel that does nothing (a `Lines` box and two
   arrays, as the cell kernels take): `wp.launch`, a recorded launch (`record_cmd=True`), its replay,
   a replay after `set_param_by_name`, and two replays handed to the CPU's threads at once
   (core/threads.Parallel) against one after the other;
 - the Hysing tank (benchmarks/validation/convergence.py's hysing_2d): after --warmup steps, per step:
   launches by kind (direct `wp.launch`, recordings, replays of recorded ones) and by kernel, kernel
-  invocations and their time inside Warp's native call (summed over threads: the "kernel bodies";
-  the rest of a step's wall time is the host's), the same for the pressure solve alone with its CG
-  iterations (invocations per iteration);
-- the stream bandwidth: numpy copies of 256 MB, on one thread and on two at once (read + write bytes);
-- the peer block (benchmarks/performance/peer_comparison.py's scene): p2g's and g2p's seconds (their
-  stage's, the particles' bounding box included) against the bytes each must move at least (each
-  particle field it reads or writes once, PARTICLE_BYTES, plus the grid's face arrays once) at the
-  better of the two stream bandwidths, and the CG's seconds per iteration per fluid cell against
-  the bytes of its passes over the solve's box (CG_BYTES_PER_CELL, an estimate: see below).
+  invocations and the CPU seconds of the thread inside Warp's native call (summed over threads: the
+  "kernel bodies"; the rest of a step's CPU seconds is the host's), the same for the pressure solve
+  alone with its CG iterations (invocations per iteration);
+- the stream bandwidth: numpy copies of 256 MB, on one thread and on two at once (read + write bytes,
+  over each copying thread's CPU seconds);
+- the peer block (benchmarks/performance/peer_comparison.py's scene): the CPU seconds of p2g's and
+  g2p's kernels (summed over their parts) against the CPU seconds one thread needs to move the bytes
+  each must move at least (each particle field it reads or writes once, PARTICLE_BYTES, plus the
+  grid's face arrays once) at one thread's stream bandwidth; the same for the CG's kernels per
+  iteration (the bytes of its passes over the solve's box, CG_BYTES_PER_CELL, an estimate: see
+  below), and their CPU seconds per iteration per fluid cell.
+
+CPU seconds rather than wall seconds throughout where it can: on a machine shared with other jobs
+the wall clock mostly measures them.
 
 The kernel bodies are timed by wrapping Warp's `invoke` (warp._src.context, a private name of Warp
 1.19: a Warp that moved it fails here with an AttributeError). Timing every invocation costs about a microsecond each.
@@ -68,11 +73,11 @@ def launch_costs(n: int) -> dict:
     recorded = wp.launch(nothing, dims, inputs=args, record_cmd=True)
     parallel = Parallel(2)
 
-    def per_call(fn, reps=n):
-        start = time.perf_counter()
+    def per_call(fn, reps=n):  # CPU seconds of the process (every thread): the host's cost, less the load's
+        start = time.process_time()
         for _ in range(reps):
             fn()
-        return 1e6 * (time.perf_counter() - start) / reps
+        return 1e6 * (time.process_time() - start) / reps
 
     def set_and_replay():
         recorded.set_param_by_name("row", 1)
@@ -108,13 +113,13 @@ class LaunchCounter:
             self.kinds["replay"] += 1
             return replay(cmd, *a, **kw)
 
-        def timed_invoke(kernel, *a):
-            start = time.perf_counter()
+        def timed_invoke(kernel, *a):  # the calling thread's CPU seconds: robust to other jobs' load
+            start = time.thread_time()
             try:
                 return invoke(kernel, *a)
             finally:
                 with self.lock:
-                    self.body_s[kernel.key] += time.perf_counter() - start
+                    self.body_s[kernel.key] += time.thread_time() - start
                     self.invokes[kernel.key] += 1
 
         wp.launch, ctx.invoke, ctx.Launch.launch = counted_launch, timed_invoke, counted_replay
@@ -127,12 +132,14 @@ class LaunchCounter:
 def profile_steps(sim, steps: int) -> dict:
     """Per step: wall and CPU ms, launches by kind, kernel invocations and kernel-body ms; the solve's
     share; the slowest kernels."""
-    solve, info = sim.solver.solve, {"s": 0.0, "body": 0.0, "invokes": 0, "iterations": 0}
+    solve, info = sim.solver.solve, {"s": 0.0, "cpu": 0.0, "body": 0.0, "invokes": 0, "iterations": 0}
 
     def timed_solve(*a, **kw):
-        before, count, start = sum(counter.body_s.values()), sum(counter.invokes.values()), time.perf_counter()
+        before, count = sum(counter.body_s.values()), sum(counter.invokes.values())
+        start, cpu = time.perf_counter(), time.process_time()
         result = solve(*a, **kw)
         info["s"] += time.perf_counter() - start
+        info["cpu"] += time.process_time() - cpu
         info["body"] += sum(counter.body_s.values()) - before
         info["invokes"] += sum(counter.invokes.values()) - count
         info["iterations"] += result.iterations
@@ -152,15 +159,17 @@ def profile_steps(sim, steps: int) -> dict:
     return {"steps": n, "wall_ms": ms(wall), "cpu_ms": ms(cpu), "stages_ms": {k: ms(v) for k, v in sim.timer.seconds.items()},
             "launches_per_step": {k: v / n for k, v in counter.kinds.items()},
             "invokes_per_step": sum(counter.invokes.values()) / n, "kernel_body_ms": ms(sum(counter.body_s.values())),
-            "solve": {"ms": ms(info["s"]), "kernel_body_ms": ms(info["body"]), "invokes_per_step": info["invokes"] / n,
+            "solve": {"ms": ms(info["s"]), "cpu_ms": ms(info["cpu"]), "kernel_body_ms": ms(info["body"]), "invokes_per_step": info["invokes"] / n,
                       "cg_iterations_per_step": info["iterations"] / n,
                       "invokes_per_iteration": info["invokes"] / max(info["iterations"], 1)},
             "kernels": {k: {"ms": ms(v), "per_step": counter.invokes[k] / n, "us_each": 1e6 * v / counter.invokes[k]}
-                        for k, v in counter.body_s.most_common(20)}}
+                        for k, v in counter.body_s.most_common()}}
 
 
 def stream_bandwidth() -> dict:
-    """GB/s of numpy copies of 256 MB (read + write bytes), best of 5, on one thread and on two."""
+    """GB/s of numpy copies of 256 MB (read + write bytes), best of 5, on one thread and on two at once,
+    each copy timed by its thread's CPU seconds (a copy stalled on memory counts; one descheduled by
+    other jobs does not)."""
     a = np.ones(64 * 2**20, np.float32)
     b = np.empty_like(a)
     out = {}
@@ -168,19 +177,26 @@ def stream_bandwidth() -> dict:
         cuts = [q * a.size // threads for q in range(threads + 1)]
         best = math.inf
         for _ in range(5):
-            parts = [threading.Thread(target=np.copyto, args=(b[lo:hi], a[lo:hi])) for lo, hi in zip(cuts, cuts[1:])]
-            start = time.perf_counter()
+            spent = []
+
+            def copy(lo, hi):
+                start = time.thread_time()
+                np.copyto(b[lo:hi], a[lo:hi])
+                spent.append(time.thread_time() - start)
+
+            parts = [threading.Thread(target=copy, args=(lo, hi)) for lo, hi in zip(cuts, cuts[1:])]
             for t in parts:
                 t.start()
             for t in parts:
                 t.join()
-            best = min(best, time.perf_counter() - start)
+            best = min(best, max(spent))
         out[f"{threads} thread(s)"] = 2 * a.nbytes / best / 1e9
     return out
 
 
 def peer_bounds(profile: dict, sim, bandwidth: float) -> dict:
-    """p2g, g2p and the CG iteration: measured ms against the ms of their least traffic at `bandwidth`."""
+    """p2g, g2p and the CG iteration: their kernels' CPU ms (summed over threads) against the CPU ms of
+    their least traffic at `bandwidth` (one thread's)."""
     from warp_mpm_bubbles.core.grid import FLUID
 
     n, threads = sim.num_particles, sim.parallel.threads
@@ -190,11 +206,11 @@ def peer_bounds(profile: dict, sim, bandwidth: float) -> dict:
     fluid = int((sim.fields.types.numpy() == FLUID).sum())
     moved = {"p2g": n * (PARTICLE_BYTES["p2g"] + (threads - 1) * PARTICLE_BYTES["p2g_scan_per_extra_part"]) + faces * 8,
              "g2p": n * PARTICLE_BYTES["g2p"] + faces * 4}
-    stages = profile["stages_ms"]
-    out = {name: {"measured_ms": stages[name], "bytes": b, "bound_ms": 1e3 * b / (bandwidth * 1e9)}
+    kernels = {"p2g": f"p2g_{sim.grid.dim}d", "g2p": f"g2p_advect_{sim.grid.dim}d"}
+    out = {name: {"measured_ms": profile["kernels"][kernels[name]]["ms"], "bytes": b, "bound_ms": 1e3 * b / (bandwidth * 1e9)}
            for name, b in moved.items()}
     solve = profile["solve"]
-    per_iteration = solve["ms"] / max(solve["cg_iterations_per_step"], 1e-9)
+    per_iteration = solve["kernel_body_ms"] / max(solve["cg_iterations_per_step"], 1e-9)
     cg_bytes = box_cells * CG_BYTES_PER_CELL
     out["CG iteration"] = {"measured_ms": per_iteration, "bytes": cg_bytes, "bound_ms": 1e3 * cg_bytes / (bandwidth * 1e9),
                            "ns_per_fluid_cell": 1e6 * per_iteration / fluid, "fluid_cells": fluid, "box_cells": box_cells}
@@ -232,40 +248,41 @@ def main(argv=None):
                 sim.step(sim.stable_dt())
             peer = profile_steps(sim, max(args.steps // 5, 2))
             data["peer"] = {"grid": args.peer_grid, "particles": sim.num_particles, **peer,
-                            "bounds": peer_bounds(peer, sim, max(data["stream_GBps"].values()))}
+                            "bounds": peer_bounds(peer, sim, data["stream_GBps"]["1 thread(s)"])}
     harness.write_result("step_profile", args, data, markdown(data), title="The step broken into launches")
     return 0
 
 
 def markdown(d: dict) -> str:
-    costs = harness.markdown_table(["launch", "us (host)"], [[k, f"{v:.1f}"] for k, v in d["launch_costs_us"].items()])
+    costs = harness.markdown_table(["launch", "host CPU us"], [[k, f"{v:.1f}"] for k, v in d["launch_costs_us"].items()])
     rows = []
     for name in ("hysing", "peer"):
         if name in d:
             p, s = d[name], d[name]["solve"]
             kinds = ", ".join(f"{k} {v:.1f}" for k, v in p["launches_per_step"].items())
             rows.append([name, f"{p['particles']:,}", f"{p['wall_ms']:.1f} / {p['cpu_ms']:.1f}", kinds,
-                         f"{p['invokes_per_step']:.0f}", f"{p['kernel_body_ms']:.1f}", f"{s['ms']:.1f}",
+                         f"{p['invokes_per_step']:.0f}", f"{p['kernel_body_ms']:.1f}", f"{s['ms']:.1f} / {s['cpu_ms']:.1f}",
                          f"{s['kernel_body_ms']:.1f}", f"{s['cg_iterations_per_step']:.2f}", f"{s['invokes_per_iteration']:.1f}"])
     steps = harness.markdown_table(["scene", "particles", "step ms: wall / CPU", "launches per step", "invocations",
-                                    "kernel bodies ms", "solve ms", "solve's kernel bodies ms", "CG iterations",
+                                    "kernel bodies, CPU ms", "solve ms: wall / CPU", "solve's kernel bodies, CPU ms", "CG iterations",
                                     "invocations per iteration"], rows)
     out = "## Host cost per launch\n\n" + costs + "\n## Per step\n\n" + steps
     out += "\nStream bandwidth (numpy copy, read + write): " + ", ".join(
         f"{k} {v:.1f} GB/s" for k, v in d["stream_GBps"].items()) + "\n"
     if "peer" in d:
-        out += "\n## The peer block against the stream bandwidth (the better of one and two threads)\n\n" + harness.markdown_table(
-            ["stage", "measured ms", "least bytes (MB)", "at stream bandwidth, ms", "measured / bound"],
+        out += "\n## The peer block's kernels against one thread's stream bandwidth (CPU ms a step)\n\n" + harness.markdown_table(
+            ["stage", "kernels' CPU ms", "least bytes (MB)", "CPU ms at stream bandwidth", "measured / bound"],
             [[k, f"{v['measured_ms']:.2f}", f"{v['bytes'] / 1e6:.1f}", f"{v['bound_ms']:.2f}", f"{v['measured_over_bound']:.1f}"]
              for k, v in d["peer"]["bounds"].items()])
         cg = d["peer"]["bounds"]["CG iteration"]
-        out += (f"\nCG: {cg['ns_per_fluid_cell']:.0f} ns per fluid cell per iteration ({cg['fluid_cells']:,} fluid "
+        out += (f"\nCG: {cg['ns_per_fluid_cell']:.0f} CPU ns per fluid cell per iteration ({cg['fluid_cells']:,} fluid "
                 f"cells, a box of {cg['box_cells']:,})\n")
     for name in ("hysing", "peer"):
         if name in d:
-            out += f"\n## Slowest kernels, {name} (ms per step, summed over threads)\n\n" + harness.markdown_table(
+            out += f"\n## Slowest kernels, {name} (CPU ms per step, summed over threads)\n\n" + harness.markdown_table(
                 ["kernel", "ms", "per step", "us each"],
-                [[k, f"{v['ms']:.2f}", f"{v['per_step']:.1f}", f"{v['us_each']:.1f}"] for k, v in d[name]["kernels"].items()])
+                [[k, f"{v['ms']:.2f}", f"{v['per_step']:.1f}", f"{v['us_each']:.1f}"]
+                 for k, v in list(d[name]["kernels"].items())[:20]])
     return out
 
 

@@ -59,7 +59,7 @@ def cpu_threads() -> int:
 class _Worker:
     """A thread that runs one call at a time, handed over with two locks (`go`, `done`) rather than a
     queue and a future: a step hands over hundreds of launches, and a ThreadPoolExecutor's hand-off
-    cost about 20 us on this kind of CPU, these locks about half (docs/performance.md#threads)."""
+    took about 1.7 times as long as these locks' (docs/performance.md#threads)."""
 
     def __init__(self):
         self.go, self.done = threading.Lock(), threading.Lock()

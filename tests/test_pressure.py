@@ -244,3 +244,47 @@ def test_multigrid_iteration_counts_are_pinned(case):
                                              f"thread(s), pinned at {expected}")
         solutions.append(x.numpy())
     np.testing.assert_array_equal(solutions[0], solutions[1])
+
+
+def test_recorded_launches_are_kept_between_solves_and_never_replayed_stale(monkeypatch):
+    # One solver meets a sequence of systems, as a simulation's does from step to step: the same one
+    # again (it records nothing: the launches of the last solve replay), a new surface written into the
+    # same arrays (the fluid box grows), and a right-hand side in another array. Each answer must be
+    # a fresh solver's, bit for bit: a launch replayed over the old, smaller box or the old array
+    # would differ (over a larger box it would not: the box's result is the whole grid's).
+    from warp_mpm_bubbles.core.threads import Parallel
+
+    dim, tol = 2, 1e-6
+    problems = [make_problem((40, 40), dim, surface=s, seed=3) for s in (0.5, 0.5, 0.8, 0.8)]
+    system, n_fluid, singular = PressureSystem.from_numpy(*problems[0][:3], problems[0][4], dim, DEVICE)
+    kept = PressureSolver(problems[0][0].shape, dim, problems[0][4], DEVICE, parallel=Parallel(2))
+    records = []
+    launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda *a, **kw: (records.append(kw.get("record_cmd", False)), launch(*a, **kw))[1])
+    b_kept = wp.zeros(problems[0][0].shape, dtype=float, device=DEVICE)
+    x_kept = wp.zeros(problems[0][0].shape, dtype=float, device=DEVICE)
+    boxes = []
+    for step, (types, faces, extra, b_np, dx) in enumerate(problems):
+        fresh_system, n_fluid, singular = PressureSystem.from_numpy(types, faces, extra, dx, dim, DEVICE)
+        for dst, src in zip((system.types, *system.inv_rho, system.diag, system.extra_diag),
+                            (fresh_system.types, *fresh_system.inv_rho, fresh_system.diag, fresh_system.extra_diag)):
+            wp.copy(dst, src)  # the simulation's arrays are written in place, step after step
+        if step == 3:  # the right-hand side in another array
+            b_kept = wp.zeros(types.shape, dtype=float, device=DEVICE)
+        answers = []
+        for solver, sys_, b, x in ((kept, system, b_kept, x_kept),
+                                   (PressureSolver(types.shape, dim, dx, DEVICE), fresh_system, None, None)):
+            b = b if b is not None else wp.zeros(types.shape, dtype=float, device=DEVICE)
+            b.assign(b_np.astype(np.float32))
+            x = x if x is not None else wp.zeros(types.shape, dtype=float, device=DEVICE)
+            x.zero_()  # from rest: the fresh solver's start
+            records.clear()
+            info = solver.solve(sys_, b, x, tol=tol, max_iter=200, singular=singular, n_fluid=n_fluid,
+                                preconditioner="multigrid")
+            assert info.converged
+            if solver is kept and step == 1:
+                assert not any(records), f"the same system again recorded {sum(records)} launches"
+            answers.append(x.numpy())
+        boxes.append(kept.box)
+        np.testing.assert_array_equal(answers[0], answers[1], err_msg=f"solve {step}")
+    assert boxes[0] == boxes[1] and boxes[2] != boxes[1]  # the sequence moved the box once

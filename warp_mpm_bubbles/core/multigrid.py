@@ -53,6 +53,7 @@ import warp as wp
 
 from .grid import EMPTY, FLUID
 from .cells import at, unit
+from .launch import launch_key
 from .lines import Lines, in_box, line_end, line_first, make_lines, on_line, split_lines
 from . import threads
 from .threads import Parallel
@@ -451,6 +452,7 @@ class MultigridPreconditioner:
         self.factor = wp.zeros((n, n), dtype=wp.float64, device=device)
         self.inv_pivot = wp.zeros(n, dtype=wp.float64, device=device)
         self.y = wp.zeros(n, dtype=wp.float64, device=device)
+        self._key = None  # what the recorded launches were recorded for (build)
 
     def _launch(self, kernel, shape, inputs):
         wp.launch(kernel, shape, inputs=inputs, device=self.device)
@@ -474,17 +476,24 @@ class MultigridPreconditioner:
             L.box, dims = make_lines(lo, hi, self.dim, self.device)
             self.dims.append(dims)
             L.done = self.not_done if done is None else done
-        for lvl in range(1, len(self.levels)):  # a row reads only its children: slabs run at once
-            batch = self._parts(build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk,
-                                                                 self.laplacian_scale], work_level=lvl - 1)
+        # Launches are recorded once and replayed while the levels (their boxes, the system's arrays,
+        # the flag) stay the same from solve to solve: recording packs every argument in Python.
+        key = launch_key((self.levels, self.parallel.threads))
+        if key != self._key:
+            self._key = key
+            self._cycles = {}  # the V-cycle's recorded launches, per (r, z)
+            self._coarse = [self._parts(build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk,
+                                                                         self.laplacian_scale], work_level=lvl - 1)
+                            for lvl in range(1, len(self.levels))]
+        for batch in self._coarse:  # a row reads only its children: slabs run at once
             self.parallel.run([part.launch for part in batch])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
-        self._cycles = {}  # the V-cycle's recorded launches, per (r, z): the levels changed
 
     def apply(self, r, z):
         """z = M^-1 r (one V-cycle from z = 0 on the box); r and z are fine-level cell arrays, z is 0
-        outside the box. The cycle's launches are recorded once per build (Warp packs a launch's
-        arguments in Python: 25-30 us a launch, about 10 ms a step at the peer block) and replayed."""
+        outside the box. The cycle's launches are recorded once while the levels stay the same (Warp
+        packs a launch's arguments in Python: 15-30 us a launch, about 10 ms a step at the peer block)
+        and replayed."""
         key = (r.ptr, z.ptr)
         if key not in self._cycles:
             self._cycles[key] = self._record_cycle(r, z)

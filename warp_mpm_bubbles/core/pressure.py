@@ -24,6 +24,7 @@ from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
 from .kernel_args import (PlaneSums, PointPreconditioner, PressureOperator, plane_sums, point_preconditioner,
                           pressure_operator)
+from .launch import Recorded, launch_key
 from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
 from .threads import Parallel, line_slabs
@@ -423,16 +424,21 @@ class PressureSolver:
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
         self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
+        self.recorded = Recorded()  # the solve's recorded launches, kept from solve to solve
 
     def _record(self, kernel, inputs, dims=None):
-        """One recorded launch of `kernel` (its inputs as given): a batch of one part."""
-        return [wp.launch(kernel, dims or 1, inputs=inputs, device=self.device, record_cmd=True)]
+        """One recorded launch of `kernel` (its inputs as given): a batch of one part, recorded once
+        while the solve's box and arrays stay the same (`self.recorded`)."""
+        return self.recorded.get((kernel.key, dims, launch_key(inputs)), lambda: [
+            wp.launch(kernel, dims or 1, inputs=inputs, device=self.device, record_cmd=True)])
 
     def _record_cells(self, kernel, inputs):
         """Recorded launches of a cell kernel over the box, its first argument the walk: slabs of planes,
-        one a thread, when the box is large enough to split (core/threads.py); a batch."""
-        return [wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
-                for walk, d in line_slabs(self.lines, self.dims, self.parallel.threads)]
+        one a thread, when the box is large enough to split (core/threads.py); a batch, recorded once
+        while the solve's box and arrays stay the same."""
+        return self.recorded.get((kernel.key, "cells", launch_key(inputs)), lambda: [
+            wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
+            for walk, d in line_slabs(self.lines, self.dims, self.parallel.threads)])
 
     def _run(self, batch, row=None):
         """Replay a batch's launches at once (setting `row` first, for the kernels that take one)."""
@@ -485,7 +491,7 @@ class PressureSolver:
 
     def _center(self, types, v, sums, row: int, slot: int, n: int):
         """v -= its mean over the n fluid cells, when sums[row, slot] is its sum."""
-        self._run(self._record_cells(shift_fluid, [self.done, types, v, sums, row, slot, n]))
+        self._run(self._record_cells(shift_fluid, [self.done, types, v, sums, 0, slot, n]), row)
 
     def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, singular: bool, n_fluid: int,
               preconditioner: str = "multigrid", region=None):
@@ -499,6 +505,9 @@ class PressureSolver:
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
             self.rows = wp.zeros((max_iter + 1, ROW), dtype=wp.float64, device=self.device)
+        # the launches recorded by the last solve replay as they are if its box, arrays and threads are these
+        self.recorded.keep(self.box, self.inside, self.parallel.threads, system.types, system.inv_rho, system.diag,
+                           system.extra_diag, b, x, self.rows)
         for a in (self.rows, self.scalars, self.done, self.info):
             a.zero_()
         project = n_fluid if singular else 0

@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
+import threading
+import weakref
 
 from .lines import split_lines
 
@@ -55,23 +56,80 @@ def cpu_threads() -> int:
     return max(1, min(cores, MAX_THREADS))
 
 
+class _Worker:
+    """A thread that runs one call at a time, handed over with two locks (`go`, `done`) rather than a
+    queue and a future: a step hands over hundreds of launches, and a ThreadPoolExecutor's hand-off
+    took about 1.7 times as long as these locks' (docs/performance.md#threads)."""
+
+    def __init__(self):
+        self.go, self.done = threading.Lock(), threading.Lock()
+        self.go.acquire()
+        self.done.acquire()
+        self.call, self.error = None, None
+        threading.Thread(target=self._loop, name="warp_mpm_cpu", daemon=True).start()
+
+    def _loop(self):
+        while True:
+            self.go.acquire()
+            if self.call is None:  # stop()
+                return
+            try:
+                self.call()
+            except BaseException as error:  # noqa: BLE001 (raised again on the calling thread, by wait)
+                self.error = error
+            self.done.release()
+
+    def start(self, call):
+        self.call = call
+        self.go.release()
+
+    def wait(self):
+        self.done.acquire()
+        error, self.error, self.call = self.error, None, None
+        if error is not None:
+            raise error
+
+    def stop(self):
+        self.call = None
+        self.go.release()
+
+
+def _stop(workers):
+    for w in workers:
+        w.stop()
+
+
 class Parallel:
     """Runs a list of calls (each one kernel launch) at once on `threads` threads, the first on the
-    calling thread; one thread: one after the other."""
+    calling thread (with any calls past one a thread); one thread: one after the other. The worker
+    threads end when the Parallel is collected."""
 
     def __init__(self, threads: int):
         self.threads = threads
-        self._pool = ThreadPoolExecutor(threads - 1, thread_name_prefix="warp_mpm_cpu") if threads > 1 else None
+        self._workers = [_Worker() for _ in range(threads - 1)]
+        weakref.finalize(self, _stop, self._workers)
 
     def run(self, calls):
-        if self._pool is None or len(calls) <= 1:  # nothing to launch (an empty box), or one call
+        if not self._workers or len(calls) <= 1:  # nothing to launch (an empty box), or one call
             for call in calls:
                 call()
             return
-        pending = [self._pool.submit(call) for call in calls[1:]]
-        calls[0]()
-        for done in pending:
-            done.result()
+        started = self._workers[:len(calls) - 1]
+        for w, call in zip(started, calls[1:]):
+            w.start(call)
+        try:
+            calls[0]()
+            for call in calls[1 + len(started):]:
+                call()
+        finally:
+            errors = []
+            for w in started:
+                try:
+                    w.wait()
+                except BaseException as error:  # noqa: BLE001
+                    errors.append(error)
+        if errors:
+            raise errors[0]
 
 
 def line_slabs(box, dims, threads: int) -> list:

@@ -140,6 +140,9 @@ def surface_elevation(types: wp.array3d(dtype=wp.int32), liq_volume: wp.array3d(
     n = types.shape[geo.up_axis]
     inv_cell_vol = 1.0 / (geo.dx * geo.dx * geo.dx)
     base = wp.max(s - 1, 0)
+    cb = cell_at(c0, geo.up_axis, level_index(base, n, geo.up_sign))
+    if is_solid(types[cb[0], cb[1], cb[2]]):
+        base = s  # water on a solid floor (a glass's bottom): its depth counts from the floor's top
     depth = float(0.0)
     for level in range(base, wp.min(s + 3, n)):
         depth += fill(types, liq_volume, cell_at(c0, geo.up_axis, level_index(level, n, geo.up_sign)), inv_cell_vol)
@@ -229,21 +232,62 @@ def place_in_head(geo: GridGeometry, head: HeadCells, c: wp.vec3i, e: float, zs:
     return zs + float(below) / (geo.dx * geo.dx)
 
 
+@wp.func
+def out_of_solid(types: wp.array3d(dtype=wp.int32), geo: GridGeometry, x: wp.vec3, up_axis: int, up_sign: int):
+    """A foam particle in a solid cell moved onto the centre line of the open cell next to it that it
+    is nearest to (across gravity, or above): a collider puts particles on its true surface, which
+    may lie in a cell whose centre is inside it, where the head would find no water under them and
+    let them fall through the solid. The open cell's centre is outside every collider."""
+    c = cell_of(x, geo.origin, geo.dx)
+    if not inside(types, c) or not is_solid(types[c[0], c[1], c[2]]):
+        return x
+    best = float(2.0)
+    y = x
+    q = (x - geo.origin) / geo.dx
+    for b in range(geo.dim):
+        for side in range(2):
+            step = 2 * side - 1
+            if b == up_axis and step != up_sign:
+                continue  # never down: that is through the solid
+            n = c
+            n[b] = c[b] + step
+            gap = q[b] - float(c[b])  # how far into the cell from its low face, in cells
+            if step > 0:
+                gap = 1.0 - gap
+            if inside(types, n) and not is_solid(types[n[0], n[1], n[2]]) and gap < best:
+                best = gap
+                y = x
+                y[b] = geo.origin[b] + (float(n[b]) + 0.5) * geo.dx
+    return y
+
+
+@wp.func
+def into_solid(types: wp.array3d(dtype=wp.int32), geo: GridGeometry, x: wp.vec3, moved: wp.vec3, a: int):
+    """The step from x to `moved` along axis a alone ends in a solid cell (inside the domain)."""
+    probe = x
+    probe[a] = moved[a]
+    c = cell_of(clamp_to_domain(probe, geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
+    return inside(types, c) and is_solid(types[c[0], c[1], c[2]])
+
+
 @wp.kernel
-def settle_foam(prm: HeadParams, geo: GridGeometry, vel: FaceField, particles: Particles,
-                liquid: wp.array(dtype=float), head: HeadCells):
+def settle_foam(prm: HeadParams, geo: GridGeometry, types: wp.array3d(dtype=wp.int32), vel: FaceField,
+                particles: Particles, liquid: wp.array(dtype=float), head: HeadCells):
     """Move the head's foam: free fall above its place, resting on the water at it; the support's
-    impulse is booked, reversed, to the column's water."""
+    impulse is booked, reversed, to the column's water. Foam never enters a solid cell: over a solid
+    with no water between (a glass's rim, the floor outside it) it rests on the solid."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_FOAM:
         return
-    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    x0 = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    xp = out_of_solid(types, geo, x0, geo.up_axis, geo.up_sign)
     c = cell_of(xp, geo.origin, geo.dx)
     slot = cell_at(c, geo.up_axis, 0)
     zs = head.surface[slot[0], slot[1], slot[2]]
     v_old = particles.v[p]
     vp = v_old + prm.dt * geo.gravity  # free flight
     e = wp.dot(xp, prm.up)
+    resting = False
     if zs > 0.5 * NO_SURFACE:
         zt = place_in_head(geo, head, c, e, zs)
         if e + prm.dt * wp.dot(vp, prm.up) <= zt:  # it reaches its place: the water below carries it
@@ -252,10 +296,16 @@ def settle_foam(prm: HeadParams, geo: GridGeometry, vel: FaceField, particles: P
             # It moves with the surface, settling toward its place at up to rise_speed (linearly within a cell).
             vp = (wp.dot(vl, prm.up) + prm.rise_speed * wp.clamp((zt - e) / geo.dx, -1.0, 1.0)) * prm.up
             vp = vp + spreading(geo, head, slot, prm.rise_speed, prm.dt)
-            m = wp.float64(particles.mass[p]) + wp.float64(prm.liquid_density * liquid[p])
-            support = wp.vec3d(vp - v_old - prm.dt * geo.gravity)
-            wp.atomic_sub(head.impulse, slot[0], slot[1], slot[2], m * support)  # the water's reaction
+            resting = True
     moved = xp + prm.dt * vp
+    for a in range(geo.dim):  # a solid takes the part of the step that would carry it in
+        if into_solid(types, geo, xp, moved, a):
+            moved[a] = xp[a]
+            vp[a] = 0.0
+    if resting:
+        m = wp.float64(particles.mass[p]) + wp.float64(prm.liquid_density * liquid[p])
+        support = wp.vec3d(vp - v_old - prm.dt * geo.gravity)
+        wp.atomic_sub(head.impulse, slot[0], slot[1], slot[2], m * support)  # the water's reaction
     particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])
     xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
     particles.x[p] = xn
@@ -415,8 +465,8 @@ class Head:
         self.cells.foam.zero_()
         ctx.launch(splat_head, p.count, [geo, parts, book.liquid, self.cells])
         ctx.launch(head_columns, self.columns, [geo, f.types, f.liq_volume, self.cells])
-        ctx.launch(settle_foam, p.count, [self.params, geo, kernel_args.face_field(f.vel), parts, book.liquid,
-                                          self.cells])
+        ctx.launch(settle_foam, p.count, [self.params, geo, f.types, kernel_args.face_field(f.vel), parts,
+                                          book.liquid, self.cells])
         ctx.book_outflow()  # foam blown through an open wall
 
     def load(self, ctx):

@@ -15,8 +15,9 @@ def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
     (a particle exactly on the far wall would otherwise reach one node past the ghost layer)."""
     eps = 1.0e-4 * dx
     y = x
-    for a in range(dim):
-        y[a] = wp.clamp(x[a], eps, domain_hi[a] - eps)
+    for a in range(3):  # a constant range unrolls; a loop to `dim` kept y on the stack, each read stalled
+        if a < dim:
+            y[a] = wp.clamp(x[a], eps, domain_hi[a] - eps)
     return y
 
 
@@ -24,11 +25,12 @@ def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
 def wall_stopped(moved: wp.vec3, kept: wp.vec3, vp: wp.vec3, dim: int):
     """The velocity of a particle clamped from `moved` back to `kept`: it loses what pushed it out."""
     out = vp
-    for a in range(dim):
-        if moved[a] < kept[a]:
-            out[a] = wp.max(vp[a], 0.0)
-        if moved[a] > kept[a]:
-            out[a] = wp.min(vp[a], 0.0)
+    for a in range(3):  # unrolled, as in clamp_to_domain
+        if a < dim:
+            if moved[a] < kept[a]:
+                out[a] = wp.max(vp[a], 0.0)
+            if moved[a] > kept[a]:
+                out[a] = wp.min(vp[a], 0.0)
     return out
 
 
@@ -39,7 +41,9 @@ def open_wall_exit(moved: wp.vec3, geo: GridGeometry, phase: int):
     outflow); but AIRBORNE for liquid past an open top, the wall against gravity, which it flies
     above and falls back through (a splash). A particle past two faces leaves unless both are the top."""
     code = int(ACTIVE)
-    for a in range(geo.dim):
+    for a in range(3):  # unrolled, as in clamp_to_domain
+        if a >= geo.dim:
+            continue
         out_lo = geo.open_lo[a] != 0 and moved[a] < 0.0
         out_hi = geo.open_hi[a] != 0 and moved[a] > geo.domain_hi[a]
         if out_lo or out_hi:

@@ -287,14 +287,32 @@ def component_stencil(s: MacStencil, a: int):
 
 
 @wp.func
+def pair_row(a: wp.array3d(dtype=wp.vec2), base: wp.vec3i, i: int, j: int):
+    """Nodes (base + (i, j, 0..2)) of a contiguous array, as an array of 3 from base z on: the node
+    is then reached at a constant offset (indexing `a` itself tests each of the three indices for a
+    negative wrap and multiplies it by its stride, at every node). Bases are never negative:
+    particles are clamped inside the domain, a ghost cell from the arrays' edge."""
+    n = ((base[0] + i) * a.shape[1] + base[1] + j) * a.shape[2] + base[2]
+    return wp.array(ptr=wp.uint64(a.ptr) + wp.uint64(n) * wp.uint64(8), shape=(3,), dtype=wp.vec2)
+
+
+
+@wp.func
+def value_row(a: wp.array3d(dtype=float), base: wp.vec3i, i: int, j: int):
+    """pair_row for an array of floats."""
+    n = ((base[0] + i) * a.shape[1] + base[1] + j) * a.shape[2] + base[2]
+    return wp.array(ptr=wp.uint64(a.ptr) + wp.uint64(n) * wp.uint64(4), shape=(3,), dtype=float)
+
+
+@wp.func
 def splat_pair(face: wp.array3d(dtype=wp.vec2), s: Stencil, i: int, j: int, k: int, dx: float, m: float, vel: float,
                grad: wp.vec3):
     """Node (i, j, k)'s share of one particle's APIC momentum and mass of one component, added as a
-    pair: one read-modify-write instead of two."""
+    pair: one read-modify-write instead of two. `face` is contiguous (pair_row)."""
     w = s.wx[i] * s.wy[j] * s.wz[k]
     dpos = (wp.vec3(float(i), float(j), float(k)) - s.frac) * dx
     wm = w * m
-    wp.atomic_add(face, s.base[0] + i, s.base[1] + j, s.base[2] + k, wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm))
+    wp.atomic_add(pair_row(face, s.base, i, j), k, wp.vec2(wm * (vel + wp.dot(grad, dpos)), wm))
 
 
 @wp.kernel(enable_backward=False)
@@ -322,7 +340,8 @@ def splat_node(face_u: wp.array3d(dtype=wp.vec2), face_v: wp.array3d(dtype=wp.ve
                k: int, dx: float, m: float, vol: float, vp: wp.vec3, Cp: wp.mat33, liquid: bool, u_owned: bool,
                c_owned: bool, dim: int):
     """Node (i, j, k) of a particle's stencils: its momentum pairs on the three face grids and, for the
-    liquid, its (mass, volume) pair on the cell grid; the u faces if u_owned, the others if c_owned."""
+    liquid, its (mass, volume) pair on the cell grid; the u faces if u_owned, the others if c_owned.
+    The arrays are contiguous (pair_row)."""
     if u_owned:
         splat_pair(face_u, su, i, j, k, dx, m, vp[0], Cp[0])
     if c_owned:
@@ -331,7 +350,7 @@ def splat_node(face_u: wp.array3d(dtype=wp.vec2), face_v: wp.array3d(dtype=wp.ve
             splat_pair(face_w, sw, i, j, k, dx, m, vp[2], Cp[2])
         if liquid:
             w = sc.wx[i] * sc.wy[j] * sc.wz[k]
-            wp.atomic_add(cell_mv, sc.base[0] + i, sc.base[1] + j, sc.base[2] + k, wp.vec2(w * m, w * vol))
+            wp.atomic_add(pair_row(cell_mv, sc.base, i, j), k, wp.vec2(w * m, w * vol))
 
 
 def _p2g_kernel(dim: int):
@@ -435,7 +454,7 @@ def _gather_func(dim: int):
                 t = float(0.0)
                 tz = float(0.0)
                 for k in range(wp.static(NK)):
-                    g = vel[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+                    g = value_row(vel, s.base, i, j)[k]
                     t += s.wz[k] * g
                     tz += s.wz[k] * dpz[k] * g
                 ty += s.wy[j] * t
@@ -501,12 +520,10 @@ def _g2p_kernel(dim: int):
             return
         xp = clamp_to_domain(x[p], domain_hi, dx, wp.static(dim))
         s = mac_stencil(xp, geo.origin, 1.0 / dx, wp.static(dim))
-        vp = wp.vec3(0.0)
-        Cp = wp.mat33(0.0)
+        field = vel
         if phase[p] == PHASE_GAS:  # the gas's own field (the liquid's when phase velocities are shared)
-            vp, Cp = gather_mac(gas_vel, s, dx)
-        else:
-            vp, Cp = gather_mac(vel, s, dx)
+            field = gas_vel
+        vp, Cp = gather_mac(field, s, dx)  # one copy of the gather in the compiled code, not two
         if phase[p] != PHASE_GAS or gas_J_from_cells == 0:  # else update_gas_J, from its cells' volume change
             J[p] = J[p] * wp.exp(dt * wp.trace(Cp))  # dJ/dt = J div v; exp keeps a fast-compressed J positive
         # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.

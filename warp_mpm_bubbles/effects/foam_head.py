@@ -42,7 +42,7 @@ from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
 from ..core.cells import cell_of, inside, is_solid
 from ..core.geometry import GridGeometry
 from ..core.grid import FLUID, PHASE_FOAM, PHASE_LIQUID
-from ..core.kernel_args import FaceField, Particles
+from ..core.kernel_args import CellPhases, FaceField, Particles
 from ..core.transfer_kernels import interpolate_velocity
 from .foam_drainage import BURST, FoamBook, book_to_column, cell_at, column_launch_shape
 
@@ -313,15 +313,19 @@ def settle_foam(prm: HeadParams, geo: GridGeometry, types: wp.array3d(dtype=wp.i
 
 
 @wp.func
-def push_face(vel: wp.array3d(dtype=float), inv_rho: wp.array3d(dtype=float), types: wp.array3d(dtype=wp.int32),
+def push_face(vel: wp.array3d(dtype=float), inv_rho: wp.array3d(dtype=float), cells: CellPhases,
               f: wp.vec3i, axis: int, impulse: float, inv_cell_vol: float):
-    """Give the face f (normal to `axis`) between two fluid cells `impulse` (N s) as the pressure
-    solve gives its own (du = impulse / (rho_face dx^3)); returns what it took."""
+    """Give the face f (normal to `axis`) between two liquid cells `impulse` (N s) as the pressure
+    solve gives its own (du = impulse / (rho_face dx^3)); returns what it took. A face beside a gas
+    cell (a bubble under the head) takes none: its density is the gas's, and the same impulse
+    would move it about a thousand times faster than the water it stands for."""
     lo = f
     lo[axis] = f[axis] - 1
-    if not inside(types, lo) or not inside(types, f) or not inside(inv_rho, f):
+    if not inside(cells.types, lo) or not inside(cells.types, f) or not inside(inv_rho, f):
         return 0.0
-    if types[lo[0], lo[1], lo[2]] != FLUID or types[f[0], f[1], f[2]] != FLUID:
+    if cells.types[lo[0], lo[1], lo[2]] != FLUID or cells.types[f[0], f[1], f[2]] != FLUID:
+        return 0.0
+    if cells.phase[lo[0], lo[1], lo[2]] != PHASE_LIQUID or cells.phase[f[0], f[1], f[2]] != PHASE_LIQUID:
         return 0.0
     k = inv_rho[f[0], f[1], f[2]]
     if k <= 0.0:
@@ -331,13 +335,13 @@ def push_face(vel: wp.array3d(dtype=float), inv_rho: wp.array3d(dtype=float), ty
 
 
 @wp.func
-def push_axis(vel: FaceField, inv_rho: FaceField, types: wp.array3d(dtype=wp.int32), f: wp.vec3i, axis: int,
+def push_axis(vel: FaceField, inv_rho: FaceField, cells: CellPhases, f: wp.vec3i, axis: int,
               impulse: float, inv_cell_vol: float):
     if axis == 0:
-        return push_face(vel.u, inv_rho.u, types, f, 0, impulse, inv_cell_vol)
+        return push_face(vel.u, inv_rho.u, cells, f, 0, impulse, inv_cell_vol)
     if axis == 1:
-        return push_face(vel.v, inv_rho.v, types, f, 1, impulse, inv_cell_vol)
-    return push_face(vel.w, inv_rho.w, types, f, 2, impulse, inv_cell_vol)
+        return push_face(vel.v, inv_rho.v, cells, f, 1, impulse, inv_cell_vol)
+    return push_face(vel.w, inv_rho.w, cells, f, 2, impulse, inv_cell_vol)
 
 
 @wp.func
@@ -349,7 +353,7 @@ def bottom_face(level: int, n: int, up_sign: int):
 
 
 @wp.kernel
-def load_water(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), liq_volume: wp.array3d(dtype=float),
+def load_water(geo: GridGeometry, cells: CellPhases, liq_volume: wp.array3d(dtype=float),
                vel: FaceField, inv_rho: FaceField, head: HeadCells):
     """Each column's booked impulse onto its water's faces (launched with the up axis's extent 1):
     LOAD_DEPTH cells under the surface, shared by the two faces around that depth in proportion to
@@ -359,11 +363,11 @@ def load_water(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), liq_volume:
     c0 = wp.vec3i(i, j0, k)
     slot = cell_at(c0, geo.up_axis, 0)
     owed = head.impulse[slot[0], slot[1], slot[2]]
-    zs = surface_elevation(types, liq_volume, c0, geo)
+    zs = surface_elevation(cells.types, liq_volume, c0, geo)
     if zs <= 0.5 * NO_SURFACE or (owed[0] == wp.float64(0.0) and owed[1] == wp.float64(0.0)
                                   and owed[2] == wp.float64(0.0)):
         return
-    n = types.shape[geo.up_axis]
+    n = cells.types.shape[geo.up_axis]
     a = geo.up_axis
     icv = 1.0 / (geo.dx * geo.dx * geo.dx)
     q = (zs - LOAD_DEPTH * geo.dx - floor_elevation(level_index(0, n, geo.up_sign), geo)) / geo.dx
@@ -374,9 +378,9 @@ def load_water(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), liq_volume:
         w = 0.0
     whole = float(owed[a])
     f = cell_at(c0, a, bottom_face(level, n, geo.up_sign))
-    took = push_axis(vel, inv_rho, types, f, a, (1.0 - w) * whole, icv)
+    took = push_axis(vel, inv_rho, cells, f, a, (1.0 - w) * whole, icv)
     f = cell_at(c0, a, bottom_face(level + 1, n, geo.up_sign))
-    took += push_axis(vel, inv_rho, types, f, a, whole - took, icv)
+    took += push_axis(vel, inv_rho, cells, f, a, whole - took, icv)
     left = owed
     left[a] = owed[a] - wp.float64(took)
     # Across gravity: half on each side face of the cell at that depth (all on one where the other
@@ -387,10 +391,10 @@ def load_water(geo: GridGeometry, types: wp.array3d(dtype=wp.int32), liq_volume:
             whole = float(owed[b])
             hi = h
             hi[b] = h[b] + 1
-            took_lo = push_axis(vel, inv_rho, types, h, b, 0.5 * whole, icv)
-            took_hi = push_axis(vel, inv_rho, types, hi, b, whole - took_lo, icv)
+            took_lo = push_axis(vel, inv_rho, cells, h, b, 0.5 * whole, icv)
+            took_hi = push_axis(vel, inv_rho, cells, hi, b, whole - took_lo, icv)
             if took_hi == 0.0 and took_lo != 0.0:
-                took_lo += push_axis(vel, inv_rho, types, h, b, whole - took_lo, icv)
+                took_lo += push_axis(vel, inv_rho, cells, h, b, whole - took_lo, icv)
             left[b] = owed[b] - wp.float64(took_lo) - wp.float64(took_hi)
     head.impulse[slot[0], slot[1], slot[2]] = left
 
@@ -472,7 +476,8 @@ class Head:
     def load(self, ctx):
         """The foam's booked reaction onto the water's faces (the force hook, before the solve)."""
         f = ctx.fields
-        ctx.launch(load_water, self.columns, [ctx.geometry, f.types, f.liq_volume, kernel_args.face_field(f.vel),
+        ctx.launch(load_water, self.columns, [ctx.geometry, kernel_args.cell_phases(f), f.liq_volume,
+                                              kernel_args.face_field(f.vel),
                                               kernel_args.face_field(f.inv_rho), self.cells])
 
     def return_water(self, ctx):

@@ -7,9 +7,10 @@ JOBS.json is a list of {"scene": path, "argv": [extra flags], "tag": a name the 
 Each result line holds the scene, its tag, the exit code ("hang" when it ran past --scene-seconds),
 the captured stdout and stderr, the wall seconds and, for every frame the run wrote, what the test
 cannot read from the USD file: a hash of the state, the liquid's rest volume (mass / density: what
-entered and stayed), the volume it occupies (Simulation.liquid_volume), the liquid's mass budget (what left
-through open walls), the gas budget's total and volume, what the emitters have emitted so far
-and the volume each stream delivered. Measuring does not change the run (the grid that
+entered and stayed), the volume it occupies (Simulation.liquid_volume), the liquid's mass budget
+(what left through open walls), with a two-way head the liquid its films hold and its water is
+owed and what its foam carried out through open walls, the gas budget's total and volume, what the
+emitters have emitted so far and the volume each stream delivered. Measuring does not change the run (the grid that
 liquid_volume re-splats is rebuilt every step): the USD it writes matched a plain `run`'s bit for
 bit on a scene with gas, tension and an injector. tests/test_run_fuzz.py starts it with a timeout,
 so even a hang inside a kernel (where no alarm fires) is caught and named: the first scene
@@ -55,6 +56,13 @@ def frame_metrics(sim) -> dict:
     budget = sim.mass_budget()["liquid"]
     emitters = sim.stage("emitters")
     emitted, inflow = (emitters.state.progress, emitters.state.inflow) if emitters else (None, None)
+    # A two-way head (effects/foam_head.py) takes its films' liquid out of the water's particles and
+    # gives it back as new ones: the liquid its films hold and what its columns' water is owed
+    # (signed: negative while the films owe the water liquid not yet taken from it) belong to the
+    # liquid's rest volume; water + films + owed is what it keeps constant. One-way foam leaves the
+    # water's particles alone, and its films' liquid is no part of it.
+    foam = sim.stage("foam")
+    head = foam.liquid_budget(sim.ctx) if foam is not None and foam.head is not None else None
     state = hashlib.sha1(p["positions"].tobytes() + p["velocities"].tobytes() + p["ids"].tobytes())
     return {
         "state_sha1": state.hexdigest(),  # the same scene must give the same state (CPU determinism)
@@ -62,6 +70,8 @@ def frame_metrics(sim) -> dict:
         "liquid_rest_volume": rest,
         "liquid_occupied_volume": float(sim.liquid_volume()),
         "liquid_flying_volume": float(rest_each[flying].sum()),
+        "liquid_in_head": 0.0 if head is None else head["held"] + head["owed"],
+        "liquid_left_in_foam": 0.0 if head is None else head.get("left", 0.0),  # films gone through open walls
         "liquid_left_mass": budget["left"], "liquid_added_mass": budget["added"], "liquid_mass_error": budget["error"],
         "gas_total": float(sim.gas_budget()["total"]) if sim.has_gas else None,
         "gas_volume": float(sim.gas_budget()["volume"]) if sim.has_gas else 0.0,

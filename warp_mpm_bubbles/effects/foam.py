@@ -30,16 +30,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import warp as wp
 
-from ..core.cells import cell_of, is_solid
+from ..core.cells import cell_of, inside, is_solid
 from ..core import kernel_args
 from ..core.geometry import GridGeometry
 from ..core.kernel_args import FaceField, Particles
-from ..core.grid import PHASE_FOAM, PHASE_GAS, sphere_radius
+from ..core.grid import LEAVING, PHASE_FOAM, PHASE_GAS, sphere_radius
 from ..core.stage import Stage
 from . import foam_drainage, foam_head
-from .foam_drainage import BURST, DRAINED, LENT, THROUGH_BOTTOM, FoamBook, book_to_column, foam_book
+from .foam_drainage import (BURST, DRAINED, LEDGER_SIZE, LEFT, LENT, THROUGH_BOTTOM, FoamBook, book_to_column,
+                            foam_book)
 from ..physics.gas import exposed_to_open_air
 from ..scene.effects import Foam
 from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
@@ -118,8 +120,11 @@ def advance_foam(
         lift = rise_speed * wp.clamp((phi - SURFACE_PHI) / (1.0 - SURFACE_PHI), -1.0, 1.0)
         vp = interpolate_velocity(vel, xp, geo.origin, geo.dx, geo.dim) + lift * up
     moved = xp + dt * vp
-    # LEAVING through an open wall: book_outflow retires it
-    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])
+    # LEAVING through an open wall: book_outflow retires it (its gas), and its films' liquid leaves
+    code = open_wall_exit(moved, geo, particles.phase[p])
+    if code == LEAVING:
+        wp.atomic_add(liquid_ledger, LEFT, wp.float64(liquid[p]))
+    particles.active[p] = code
     xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
     particles.x[p] = xn
     particles.v[p] = wall_stopped(moved, xn, vp, geo.dim)  # a wall stops the motion into it, as in g2p
@@ -137,16 +142,27 @@ def weyl_fraction(i: wp.int64):
 @wp.kernel
 def gas_to_foam(foam_material: int, mean_life: float, seed: int, geo: GridGeometry, types: wp.array3d(dtype=wp.int32),
                 ceiling: wp.array3d(dtype=wp.int32), particles: Particles, book: FoamBook, wet: float,
-                stratified: int):
+                stratified: int, surface: wp.array3d(dtype=float), vented_mass: wp.array(dtype=wp.float64)):
     """Gas in open air becomes foam (where the vent stage would retire it), with its lifetime and
     the liquid of its films, wet / (1 - wet) of its gas volume (liquid fraction `wet`), which the
-    liquid ledger books as lent by the water (with a head, by its column's water)."""
+    liquid ledger books as lent by the water (with a head, by its column's water). With a head,
+    gas in open air over a column without water (`surface`, foam_head.head_columns) vents as it
+    would without foam: there is no water its films could be made of. Made there, their liquid
+    was a debt no water could pay, and it came out of nothing as water made where they burst, or
+    left the box with them through an open wall."""
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS:
         return
     c = cell_of(particles.x[p], geo.origin, geo.dx)
     if not exposed_to_open_air(types, ceiling, c, geo.up_axis, geo.up_sign, geo.dim):
         return
+    if book.head != 0:
+        slot = c
+        slot[geo.up_axis] = 0
+        if not inside(surface, slot) or surface[slot[0], slot[1], slot[2]] <= 0.5 * foam_head.NO_SURFACE:
+            particles.active[p] = 0
+            wp.atomic_add(vented_mass, 0, wp.float64(particles.mass[p]))
+            return
     particles.phase[p] = PHASE_FOAM
     particles.material[p] = foam_material
     # A hash of (seed, particle id): no generator state to carry or checkpoint, and the same draw
@@ -177,8 +193,9 @@ class FoamStage(Stage):
         # Liquid volume its films hold (its liquid fraction is foam_liquid / (foam_liquid + volume)).
         ctx.particles.add_field("foam_liquid", float)
         # float64 m^3 of liquid: lent by the water to new films, drained back, lost to bursts (rained
-        # back), and through the runs' bottoms in the column solve (foam_drainage's indices).
-        self.liquid_ledger = wp.zeros(4, dtype=wp.float64, device=ctx.device)
+        # back), through the runs' bottoms in the column solve, and carried out through open walls
+        # (foam_drainage's indices).
+        self.liquid_ledger = wp.zeros(LEDGER_SIZE, dtype=wp.float64, device=ctx.device)
         g = ctx.gravity
         g_mag = math.sqrt(sum(a * a for a in g))
         if settings.drainage:  # the foam's gas and liquid per cell, float64 (two cell arrays)
@@ -194,6 +211,7 @@ class FoamStage(Stage):
         self.head = foam_head.Head(ctx, settings, self._liquid_density(ctx.scene)) if settings.head else None
         self._returned = self.head.cells.returned if self.head else wp.zeros((1, 1, 1), dtype=wp.float64,
                                                                               device=ctx.device)
+        self._surface = self.head.cells.surface if self.head else wp.zeros((1, 1, 1), dtype=float, device=ctx.device)
 
     def hooks(self) -> set[str]:
         hooks = super().hooks()
@@ -246,7 +264,7 @@ class FoamStage(Stage):
         ctx.launch(gas_to_foam, p.count,
                    [self.material, self.settings.lifetime, self._seed, ctx.geometry, f.types, f.ceiling,
                     kernel_args.particle_arrays(p), self._book(ctx), self.settings.liquid_fraction,
-                    int(self.settings.lifetimes == "stratified")])
+                    int(self.settings.lifetimes == "stratified"), self._surface, f.vented_mass])
         if self.settings.drainage and ctx.geometry.up_axis >= 0:
             self.drain(ctx, dt)
         if self.head is not None:
@@ -272,21 +290,24 @@ class FoamStage(Stage):
 
     def load_state(self, arrays: dict) -> None:
         if "foam_liquid_ledger" in arrays:
-            self.liquid_ledger.assign(wp.array(arrays["foam_liquid_ledger"], dtype=wp.float64,
-                                               device=self.liquid_ledger.device))
+            ledger = np.zeros(LEDGER_SIZE, np.float64)  # a checkpoint from before LEFT has 4 entries
+            saved_ledger = np.asarray(arrays["foam_liquid_ledger"], np.float64)
+            ledger[:len(saved_ledger)] = saved_ledger
+            self.liquid_ledger.assign(wp.array(ledger, dtype=wp.float64, device=self.liquid_ledger.device))
         if self.head is not None:
             self.head.load_state(arrays)
 
     def liquid_budget(self, ctx) -> dict[str, float]:
-        """The films' liquid, m^3: lent by the water, held now, drained back, burst; balanced, lent =
-        held + drained + burst to float64 round-off."""
+        """The films' liquid, m^3: lent by the water, held now, drained back, burst, left (in foam
+        gone through an open wall); balanced, lent = held + drained + burst + left to float64
+        round-off."""
         n = ctx.particles.count
         phase, active = ctx.particles.numpy("phase")[:n], ctx.particles.numpy("active")[:n]
         held = ctx.particles.numpy("foam_liquid")[:n][(phase == PHASE_FOAM) & (active != 0)]
         ledger = self.liquid_ledger.numpy()
         budget = {"lent": float(ledger[LENT]), "held": float(held.astype("float64").sum()),
                   "drained": float(ledger[DRAINED]), "burst": float(ledger[BURST]),
-                  "through_bottom": float(ledger[THROUGH_BOTTOM])}
+                  "through_bottom": float(ledger[THROUGH_BOTTOM]), "left": float(ledger[LEFT])}
         if self.head is not None:  # made into water particles, and still owed to the water
             budget["water_made"] = self.head.state.water_made * self.head.particle_volume
             budget["owed"] = self.head.owed()

@@ -54,8 +54,10 @@ SAFETY = wp.constant(0.4)  # of the explicit update's stability limit
 PACKED_SPACING = wp.constant(0.5)  # of a cell: the least height of a head's cell of foam in the column solve
 MIN_HEIGHT = wp.constant(0.1)  # of a cell: a nearly empty cell counts this tall (keeps sub-steps bounded)
 
-# The liquid ledger's entries, float64 m^3 of liquid.
-LENT, DRAINED, BURST, THROUGH_BOTTOM = range(4)
+# The liquid ledger's entries, float64 m^3 of liquid. LEFT: the films of foam that went out
+# through an open wall (the liquid leaves the domain with them).
+LENT, DRAINED, BURST, THROUGH_BOTTOM, LEFT = range(5)
+LEDGER_SIZE = 5
 
 
 @wp.struct
@@ -64,7 +66,7 @@ class FoamBook:
 
     life: wp.array(dtype=float)  # seconds left
     liquid: wp.array(dtype=float)  # m^3 of liquid in its films
-    ledger: wp.array(dtype=wp.float64)  # the stage's liquid ledger (LENT, DRAINED, BURST, THROUGH_BOTTOM)
+    ledger: wp.array(dtype=wp.float64)  # the stage's liquid ledger (LENT, DRAINED, BURST, THROUGH_BOTTOM, LEFT)
     # With a two-way head (foam_head.py): per grid column (at its cell of up index 0), the liquid
     # owed to the water, m^3 (lent to films: negative); without: a stand-in nothing reads.
     returned: wp.array3d(dtype=wp.float64)

@@ -41,10 +41,10 @@ from ..core.host_state import HostState, saved
 from ..core.boundary import clamp_to_domain, open_wall_exit, wall_stopped
 from ..core.cells import cell_of, inside, is_solid
 from ..core.geometry import GridGeometry
-from ..core.grid import FLUID, PHASE_FOAM, PHASE_LIQUID
+from ..core.grid import FLUID, LEAVING, PHASE_FOAM, PHASE_LIQUID
 from ..core.kernel_args import CellPhases, FaceField, Particles
 from ..core.transfer_kernels import interpolate_velocity
-from .foam_drainage import BURST, FoamBook, book_to_column, cell_at, column_launch_shape
+from .foam_drainage import BURST, LEFT, FoamBook, book_to_column, cell_at, column_launch_shape
 
 wp.set_module_options({"enable_backward": False})
 
@@ -272,10 +272,12 @@ def into_solid(types: wp.array3d(dtype=wp.int32), geo: GridGeometry, x: wp.vec3,
 
 @wp.kernel
 def settle_foam(prm: HeadParams, geo: GridGeometry, types: wp.array3d(dtype=wp.int32), vel: FaceField,
-                particles: Particles, liquid: wp.array(dtype=float), head: HeadCells):
+                particles: Particles, book: FoamBook, head: HeadCells):
     """Move the head's foam: free fall above its place, resting on the water at it; the support's
     impulse is booked, reversed, to the column's water. Foam never enters a solid cell: over a solid
-    with no water between (a glass's rim, the floor outside it) it rests on the solid."""
+    with no water between (a glass's rim, the floor outside it) it rests on the solid. Foam that
+    goes out through an open wall takes its films' liquid with it (booked as LEFT)."""
+    liquid = book.liquid
     p = wp.tid()
     if particles.active[p] == 0 or particles.phase[p] != PHASE_FOAM:
         return
@@ -306,7 +308,10 @@ def settle_foam(prm: HeadParams, geo: GridGeometry, types: wp.array3d(dtype=wp.i
         m = wp.float64(particles.mass[p]) + wp.float64(prm.liquid_density * liquid[p])
         support = wp.vec3d(vp - v_old - prm.dt * geo.gravity)
         wp.atomic_sub(head.impulse, slot[0], slot[1], slot[2], m * support)  # the water's reaction
-    particles.active[p] = open_wall_exit(moved, geo, particles.phase[p])
+    code = open_wall_exit(moved, geo, particles.phase[p])
+    if code == LEAVING:  # book_outflow retires it and books its gas
+        wp.atomic_add(book.ledger, LEFT, wp.float64(liquid[p]))
+    particles.active[p] = code
     xn = clamp_to_domain(moved, geo.domain_hi, geo.dx, geo.dim)
     particles.x[p] = xn
     particles.v[p] = wall_stopped(moved, xn, vp, geo.dim)
@@ -470,7 +475,7 @@ class Head:
         ctx.launch(splat_head, p.count, [geo, parts, book.liquid, self.cells])
         ctx.launch(head_columns, self.columns, [geo, f.types, f.liq_volume, self.cells])
         ctx.launch(settle_foam, p.count, [self.params, geo, f.types, kernel_args.face_field(f.vel), parts,
-                                          book.liquid, self.cells])
+                                          book, self.cells])
         ctx.book_outflow()  # foam blown through an open wall
 
     def load(self, ctx):
@@ -521,6 +526,14 @@ class Head:
         if not positions:
             return
         self.cells.returned.assign(wp.array(owed, dtype=wp.float64, device=self.cells.returned.device))
+        # Entrainment's seeds of this step sit in provisional slots past the count (entrainment.py):
+        # the count must be exact before anything is appended, or the new water lands past the
+        # seeds, is cut off when they settle, and the next step's seeds overwrite it (a water
+        # particle booked as added turned into a sub-grid bubble). A third host read, on the
+        # steps that make water in a scene with entrainment only.
+        entrainment = ctx.stage("entrainment")
+        if entrainment is not None and entrainment.pending_total is not None:
+            entrainment.settle(ctx, int(ctx.read_host(entrainment.pending_total)[0]))
         k = len(positions)
         ctx.add_particles(np.array(positions, np.float32), np.zeros((k, 3), np.float32),
                           np.full(k, self.water, np.int32), np.full(k, per, np.float32))

@@ -11,7 +11,7 @@ import warp as wp
 from .geometry import GridGeometry
 from .gas_law import gas_compressibility, gas_pressure
 from .grid import ACTIVE, AIRBORNE, FLUID, LEAVING, PHASE_GAS, PHASE_LIQUID
-from .boundary import clamp_to_domain, fly, keep_in_domain, open_wall_exit, wall_stopped  # noqa: F401 (re-exported)
+from .boundary import clamp_to_domain, finite, fly, keep_in_domain, open_wall_exit, wall_stopped  # noqa: F401 (re-exported)
 from .kernel_args import FaceField, FacePairs, Particles, Splat
 from .lines import Lines, line_end, line_first, on_line
 
@@ -389,7 +389,7 @@ def _p2g_kernel(dim: int):
         if particles.active[p] != ACTIVE or phase[p] > PHASE_GAS:
             return
         vp = particles.v[p]
-        if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
+        if not (finite(x[p]) and finite(vp)):
             if x_lo == 0:
                 wp.atomic_add(nonfinite, 0, 1)
             return

@@ -59,13 +59,6 @@ PPC = 8
 E, RHO, BOUND = 400.0, 1.0, 3
 
 
-def harness_git(root: Path) -> str:
-    """The commit of an earlier checkout (--before), and whether its tracked files differ from it."""
-    run = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True).stdout.strip()  # noqa: E731
-    return (run("rev-parse", "--short", "HEAD") or "unknown") + (" (modified)" if run("status", "--porcelain",
-                                                                                       "--untracked-files=no") else "")
-
-
 def peer_dt(grid: int) -> float:
     return 4e-4 * 32 / grid  # mpm3d: 4e-4 at 32^3, 2e-4 at 64^3
 
@@ -557,7 +550,7 @@ def main(argv=None) -> int:
                          f"falling under g = {GRAVITY} m/s^2",
         "rounds": args.rounds, "steps": args.steps, "warmup": args.warmup, "check_times": args.check_times,
         "before": str(args.before) if args.before else None,
-        "before_commit": harness_git(args.before) if args.before else None,
+        "before_commit": harness.checkout_commit(args.before) if args.before else None,
         "impact_time": math.sqrt(2 * (lo - BOUND / args.grid) / GRAVITY),
     }
     summary = summarize(rounds, codes)

@@ -61,11 +61,18 @@ def result_stem(benchmark: str, args, device: str | None = None) -> Path:
     return Path(args.out) / benchmark / name
 
 
-def _git(*a) -> str:
+def _git(*a, cwd: Path = ROOT) -> str:
     try:
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True, timeout=30).stdout.strip()
+        return subprocess.run(["git", *a], cwd=cwd, capture_output=True, text=True, timeout=30).stdout.strip()
     except (OSError, subprocess.TimeoutExpired):
         return ""
+
+
+def checkout_commit(root: Path) -> str:
+    """The commit of another checkout (a benchmark's --before DIR), and whether its tracked files differ
+    from it: the code an "ours before" row measured."""
+    sha = _git("rev-parse", "--short", "HEAD", cwd=root) or "unknown"
+    return sha + (" (+ uncommitted changes)" if _git("status", "--porcelain", "--untracked-files=no", cwd=root) else "")
 
 
 def last_change(*paths: str) -> str:

@@ -150,13 +150,15 @@ def test_gas_only_closed_box(tmp_path):
     assert np.abs(sim.particles_numpy()["velocities"]).max() < 0.01
 
 
-def test_nan_in_the_state_stops_with_a_named_error(tmp_path):
+@pytest.mark.parametrize("field, bad", [("v", np.nan), ("x", np.inf), ("v", -np.inf)])
+def test_nan_in_the_state_stops_with_a_named_error(tmp_path, field, bad):
+    # p2g's test for finite values (boundary.finite) on each kind: a NaN, and an infinity either way.
     from warp_mpm_bubbles.core.simulation import SimulationError
 
     sim = Simulation(make(tmp_path, (0.2, 0.2), 0.01, [Box("water", (0.0, 0.0), (0.2, 0.1))]), "cpu")
-    v = sim.particles.v.numpy()
-    v[7] = np.nan
-    sim.particles.v = wp.array(v, dtype=wp.vec3, device=sim.device)
+    values = getattr(sim.particles, field).numpy()
+    values[7, 1] = bad
+    setattr(sim.particles, field, wp.array(values, dtype=wp.vec3, device=sim.device))
     with pytest.raises(SimulationError, match=r"step 1 .*1 particles entered p2g with a non-finite"):
         sim.step(sim.stable_dt())
 

@@ -292,6 +292,39 @@ def test_the_void_search_finds_exactly_the_voids_of_the_rule():
     assert len(cells) == 16 and len(set(labels)) == 1
 
 
+def test_the_sweeps_in_slabs_mark_what_one_launch_marks():
+    """VoidSearch's line sweeps split into slabs (one a thread on the CPU; here 1, 2 and 3 slabs of
+    every box, run one after the other) mark the same open air as one launch: random cell types, 2D
+    and 3D, gravity along each axis. The marks are compared before the host's search, which would
+    cover for cells a wrong slab left unmarked."""
+    from warp_mpm_bubbles.core.grid import SOLID_NO_SLIP
+    from warp_mpm_bubbles.core.voids import VoidSearch
+
+    rng = np.random.default_rng(11)
+    launch = lambda kernel, d, inputs: wp.launch(kernel, dim=d, inputs=inputs, device="cpu")  # noqa: E731
+    marked = 0
+    for trial in range(24):
+        dim = 2 + trial % 2
+        n = rng.integers(5, 14, 3)
+        shape = (n[0] + 2, n[1] + 2, 1 if dim == 2 else n[2] + 2)
+        ghost = (1, 1, 1 if dim == 3 else 0)
+        types = np.where(rng.random(shape) < rng.uniform(0.3, 0.8), EMPTY, FLUID).astype(np.int32)
+        wall = np.ones(shape, bool)
+        wall[tuple(slice(g, s - g) for g, s in zip(ghost, shape))] = False
+        types[wall] = SOLID_NO_SLIP
+        up = (int(rng.integers(0, dim)), int(rng.choice([-1, 1])))
+        marks = []
+        for threads in (1, 2, 3):
+            search = VoidSearch(shape, ghost, up, dim, "cpu", launch, threads=threads)
+            search.split_cells = 0  # split every box, however small
+            search.find(wp.array(types, dtype=wp.int32, device="cpu"))
+            marks.append(search.reached.numpy())
+        np.testing.assert_array_equal(marks[1], marks[0])
+        np.testing.assert_array_equal(marks[2], marks[0])
+        marked += int(marks[0].sum())
+    assert marked > 100  # the sweeps did mark open air
+
+
 # ------------------------------------------------------------------ a gap beside an air bubble
 def test_a_gap_beside_an_air_bubble_is_the_bubbles_and_closes(tmp_path):
     # Liquid retired along an air bubble's side leaves particle-free cells connected to the gas: a gap

@@ -5,6 +5,7 @@ and by Warp, on the configuration of that example scaled to a block.
     python -m benchmarks.performance.peer_comparison --grid 32 --rounds 3  # 32^3 grid, 16^3-cell block (32,768)
     python -m benchmarks.performance.peer_comparison --device cuda:0 --particles-scale 4 --grid 128
     python -m benchmarks.performance.peer_comparison --quick               # 16^3 grid, 1 round of 2 steps
+    python -m benchmarks.performance.peer_comparison --before ../main      # our step before a change, side by side
 
 Configuration: a unit box, free-slip walls, gravity 9.81 m/s^2 down y, an N^3 grid (--grid, default
 64) and a water block of (N/2)^3 cells centred in the box (side 0.5 m at N = 64), seeded by our
@@ -20,6 +21,8 @@ Codes:
              cpu_max_num_threads=1); taichi-2t the same with 2 threads (taichi-cuda on a GPU).
              Needs `pip install .[bench]` (taichi); skipped with a note if it is missing.
   warp-mls   the same algorithm written in Warp below (the engine held equal: one CPU thread).
+  ours-before  with --before DIR: our step with DIR's package (an earlier checkout), in the same
+             rounds, so a change's gain and the ratios to the peers come from one run.
 
 Each round runs every code once in its own subprocess, in an order that alternates between rounds,
 so drifts in machine load hit all alike; --warmup steps (compile or cache load included) are untimed;
@@ -364,12 +367,17 @@ def worker(args) -> int:
 
 # ------------------------------------------------------------------------------------ main
 def call_worker(code: str, args, seeds: Path, check: bool = False) -> dict:
-    cmd = harness.module_command(__spec__.name, "--worker", code, "--seeds", seeds, "--grid", args.grid,
-                                 "--particles-scale", args.particles_scale, "--steps", args.steps,
-                                 "--warmup", args.warmup, "--device", args.device)
+    flags = ["--seeds", seeds, "--grid", args.grid, "--particles-scale", args.particles_scale, "--steps", args.steps,
+             "--warmup", args.warmup, "--device", args.device]
+    cwd, env = ROOT, None
+    if code == "ours-before":  # this file run as a script on the earlier checkout's package (PYTHONPATH)
+        cwd, env = args.before, dict(os.environ, PYTHONPATH=str(args.before))
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "ours", *map(str, flags)]
+    else:
+        cmd = harness.module_command(__spec__.name, "--worker", code, *flags)
     if check:
         cmd += ["--check", "--check-times", args.check_times]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     if proc.returncode or not lines:
         raise SystemExit(f"{code} failed (exit {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
@@ -389,6 +397,7 @@ def peer_codes(device: str) -> tuple[list[str], str | None]:
 
 LABELS = {
     "ours": "ours, full step (liquid only: MAC APIC, multigrid-PCG), `Simulation.step(stable_dt())`",
+    "ours-before": "ours before: the same step with the package at `{before}`",
     "taichi-1t": "Taichi {taichi} `mpm3d` algorithm (weakly compressible MLS-MPM, no pressure solve), 1 thread",
     "taichi-2t": "the same, 2 threads",
     "taichi-cuda": "Taichi {taichi} `mpm3d` algorithm (weakly compressible MLS-MPM, no pressure solve), CUDA",
@@ -406,30 +415,39 @@ def summarize(rounds: list[dict], codes: list[str]) -> dict:
     ours = out["ours"]["median_particle_steps_per_second"]
     for c in codes:
         out[c]["ours_over_it"] = ours / out[c]["median_particle_steps_per_second"]
-    stages = rounds[0]["ours"].get("stages_ms", {})
-    out["ours"]["stages_ms"] = {k: statistics.median(r["ours"]["stages_ms"][k] for r in rounds) for k in stages}
-    out["ours"]["cg_iterations_mean"] = statistics.mean(r["ours"]["cg_iterations_mean"] for r in rounds)
+        out[c]["ours_over_it_per_round"] = [o / i for o, i in zip(out["ours"]["per_round_particle_steps_per_second"],
+                                                                   out[c]["per_round_particle_steps_per_second"])]
+    for c in [c for c in codes if c.startswith("ours")]:
+        stages = rounds[0][c].get("stages_ms", {})
+        out[c]["stages_ms"] = {k: statistics.median(r[c]["stages_ms"][k] for r in rounds) for k in stages}
+        out[c]["cg_iterations_mean"] = statistics.mean(r[c]["cg_iterations_mean"] for r in rounds)
     return out
 
 
 def markdown(meta: dict, summary: dict, checks: dict) -> str:
-    fmt = {"taichi": meta["taichi_version"], "warp": meta["warp_version"],
+    fmt = {"taichi": meta["taichi_version"], "warp": meta["warp_version"], "before": meta.get("before"),
            "warp_note": ", one CPU thread" if meta["device_alias"] == "cpu" else ""}
     out = [f"- taichi {meta['taichi_version'] or 'not installed (skipped)'}; load average at the end (1, 5, 15 min): "
            + ", ".join(f"{x:.1f}" for x in meta["load_average_1_5_15min_at_end"]),
            f"- configuration: {meta['configuration']}",
            f"- {meta['rounds']} alternating rounds, each code in its own process; {meta['warmup']} warm-up steps "
-           f"(compile or cache load) excluded, then {meta['steps']} timed steps; medians over rounds", "",
-           "| code | particle-steps per second | ms / step | ours / it | dt (ms) | per round (M/s) |",
-           "|---|---:|---:|---:|---:|---|"]
+           f"(compile or cache load) excluded, then {meta['steps']} timed steps; medians over rounds"]
+    if meta.get("before"):
+        out.append(f"- ours before: the package at `{meta['before']}` ({meta['before_commit']})")
+    out += ["", "| code | particle-steps per second | ms / step | ours / it | ours / it, per round | dt (ms) "
+                "| per round (M/s) |",
+            "|---|---:|---:|---:|---|---:|---|"]
     for c, s in summary.items():
         out.append(f"| {LABELS[c].format(**fmt)} | {s['median_particle_steps_per_second'] / 1e6:.2f} M | "
-                   f"{s['median_ms_per_step']:.1f} | {s['ours_over_it']:.2f} | {s['dt_mean'] * 1e3:.3g} | "
+                   f"{s['median_ms_per_step']:.1f} | {s['ours_over_it']:.2f} | "
+                   + ", ".join(f"{x:.2f}" for x in s["ours_over_it_per_round"]) + f" | {s['dt_mean'] * 1e3:.3g} | "
                    + ", ".join(f"{p / 1e6:.2f}" for p in s["per_round_particle_steps_per_second"]) + " |")
-    ours = summary["ours"]
-    total = sum(ours["stages_ms"].values())
-    out += ["", f"Our stages, ms per step (median over rounds; {ours['cg_iterations_mean']:.1f} CG iterations "
-                f"per solve): " + ", ".join(f"{k} {v:.1f} ({100 * v / total:.0f}%)" for k, v in ours["stages_ms"].items())]
+    for c in [c for c in summary if c.startswith("ours")]:
+        ours = summary[c]
+        total = sum(ours["stages_ms"].values())
+        out += ["", f"{'Our' if c == 'ours' else 'Before: our'} stages, ms per step (median over rounds; "
+                    f"{ours['cg_iterations_mean']:.1f} CG iterations per solve): "
+                    + ", ".join(f"{k} {v:.1f} ({100 * v / total:.0f}%)" for k, v in ours["stages_ms"].items())]
     if checks:
         out += ["", "## Physics: do the codes agree?", "",
                 f"Untimed runs from the same particles to t = {meta['check_times']} s (the block's bottom meets "
@@ -470,6 +488,7 @@ def parse(argv):
     ap.add_argument("--check-times", default="0.1,0.3",
                     help="simulated times (s) of the physics check, comma-separated (default 0.1,0.3)")
     ap.add_argument("--no-check", action="store_true", help="skip the physics check")
+    ap.add_argument("--before", type=Path, help="an earlier checkout whose step runs side by side (ours-before)")
     ap.add_argument("--worker", choices=sorted(LABELS), help=argparse.SUPPRESS)
     ap.add_argument("--seeds", help=argparse.SUPPRESS)
     ap.add_argument("--check", action="store_true", help=argparse.SUPPRESS)
@@ -498,7 +517,9 @@ def main(argv=None) -> int:
     taichi_codes, taichi_version = peer_codes(args.device)
     if taichi_version is None:
         print("taichi is not installed (pip install .[bench]): the Taichi peer is skipped", file=sys.stderr)
-    codes = ["ours", *taichi_codes, "warp-mls"]
+    if args.before:
+        args.before = args.before.resolve()
+    codes = ["ours", *(["ours-before"] if args.before else []), *taichi_codes, "warp-mls"]
     wp.config.quiet = True
     dev = wp.get_device(args.device)
     n = block_cells(args.grid, args.particles_scale)
@@ -528,6 +549,8 @@ def main(argv=None) -> int:
                          f"[{lo:g}, {lo + n / args.grid:g}]^3 at {PPC} particles per cell ({particles:,} particles) "
                          f"falling under g = {GRAVITY} m/s^2",
         "rounds": args.rounds, "steps": args.steps, "warmup": args.warmup, "check_times": args.check_times,
+        "before": str(args.before) if args.before else None,
+        "before_commit": harness.checkout_commit(args.before) if args.before else None,
         "impact_time": math.sqrt(2 * (lo - BOUND / args.grid) / GRAVITY),
     }
     summary = summarize(rounds, codes)

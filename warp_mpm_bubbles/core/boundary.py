@@ -9,6 +9,17 @@ from .geometry import GridGeometry
 from .grid import ACTIVE, AIRBORNE, LEAVING, PHASE_LIQUID
 
 
+FLOAT_MAX = wp.constant(3.4028234663852886e38)  # the largest finite float32
+
+
+@wp.func
+def finite(v: wp.vec3):
+    """wp.isfinite(v), inline: |c| <= FLOAT_MAX is false for an infinite and for a NaN component.
+    wp.isfinite calls into Warp's runtime library, one call per component (p2g made six a particle
+    in each of its parts before it could skip the particle)."""
+    return wp.abs(v[0]) <= FLOAT_MAX and wp.abs(v[1]) <= FLOAT_MAX and wp.abs(v[2]) <= FLOAT_MAX
+
+
 @wp.func
 def clamp_to_domain(x: wp.vec3, domain_hi: wp.vec3, dx: float, dim: int):
     """x moved into [eps, size - eps] on the simulated axes, so every stencil lies inside the arrays

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .boundary import finite
 from .geometry import GridGeometry
 from .grid import ACTIVE
 from .threads import CACHE_LINE_FLOATS
@@ -39,7 +40,7 @@ def cell_keys(x: wp.array(dtype=wp.vec3), active: wp.array(dtype=wp.int32), geo:
     p = wp.tid()
     order[p] = p
     xp = x[p]
-    if active[p] != ACTIVE or not wp.isfinite(xp):
+    if active[p] != ACTIVE or not finite(xp):
         keys[p] = cells[0] * cells[1] * cells[2]
         return
     c = (xp - geo.origin) / geo.dx

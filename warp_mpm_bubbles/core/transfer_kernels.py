@@ -11,7 +11,7 @@ import warp as wp
 from .geometry import GridGeometry
 from .gas_law import gas_compressibility, gas_pressure
 from .grid import ACTIVE, AIRBORNE, FLUID, LEAVING, PHASE_GAS, PHASE_LIQUID
-from .boundary import clamp_to_domain, fly, keep_in_domain, open_wall_exit, wall_stopped  # noqa: F401 (re-exported)
+from .boundary import clamp_to_domain, finite, fly, keep_in_domain, open_wall_exit, wall_stopped  # noqa: F401 (re-exported)
 from .kernel_args import FaceField, FacePairs, Particles, Splat
 from .lines import Lines, line_end, line_first, on_line
 
@@ -82,7 +82,7 @@ def p2g_gas(p_atm: float, geo: GridGeometry, particles: Particles, splat: Splat,
     gas particles per cell (runs only with gas). Only cells with x index in [x_lo, x_hi) are written (a
     slab a part, as p2g: every cell still sums in particle order, whatever the split)."""
     p = wp.tid()
-    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not finite(particles.x[p]):
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
     inv_dx = 1.0 / geo.dx
@@ -143,7 +143,7 @@ def compressible_gas_stencil(geo: GridGeometry, particles: Particles, p: int):
     0) at a finite position; else (False, an empty stencil)."""
     if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or particles.gas_law[p] == 0:
         return False, Stencil()
-    if not wp.isfinite(particles.x[p]):
+    if not finite(particles.x[p]):
         return False, Stencil()
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
     return True, make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)
@@ -389,7 +389,7 @@ def _p2g_kernel(dim: int):
         if particles.active[p] != ACTIVE or phase[p] > PHASE_GAS:
             return
         vp = particles.v[p]
-        if not (wp.isfinite(x[p]) and wp.isfinite(vp)):
+        if not (finite(x[p]) and finite(vp)):
             if x_lo == 0:
                 wp.atomic_add(nonfinite, 0, 1)
             return

@@ -28,6 +28,7 @@ import warp as wp
 from ..core.geometry import GridGeometry
 from ..core.grid import FLUID, PHASE_GAS
 from ..core.cells import cell_of, cell_type_at, is_solid, unit
+from ..core.boundary import finite
 from ..core.transfer_kernels import CELL_OFFSET, clamp_to_domain, grid_coord, make_stencil
 
 wp.set_module_options({"enable_backward": False})
@@ -46,7 +47,7 @@ def count_cavity_gas(x: wp.array(dtype=wp.vec3), phase: wp.array(dtype=wp.int32)
                      flag: wp.array(dtype=wp.int32), geo: GridGeometry, count: wp.array3d(dtype=wp.int32)):
     """count[c]: the gas particles in cell c that were a cavity's at the end of the last step."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS or flag[p] == 0 or not wp.isfinite(x[p]):
+    if active[p] == 0 or phase[p] != PHASE_GAS or flag[p] == 0 or not finite(x[p]):
         return
     c = cell_of(clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
     wp.atomic_add(count, c[0], c[1], c[2], 1)
@@ -185,7 +186,7 @@ def cavity_gas_J(
     otherwise crushed step after step (J to 1e-3 at 32 cells per radius). Mass is untouched; the
     cavity's gas volume is its cells' room. flag: whether it touched a cavity (the memory)."""
     p = wp.tid()
-    if active[p] == 0 or phase[p] != PHASE_GAS or not wp.isfinite(x[p]):
+    if active[p] == 0 or phase[p] != PHASE_GAS or not finite(x[p]):
         return
     xp = clamp_to_domain(x[p], geo.domain_hi, geo.dx, geo.dim)
     s = make_stencil(grid_coord(xp, geo.origin, 1.0 / geo.dx, CELL_OFFSET), geo.dim)

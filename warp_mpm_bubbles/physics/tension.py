@@ -22,6 +22,7 @@ from ..core.cells import (
 from ..core import kernel_args
 from ..core.kernel_args import CellPhases, Particles
 from ..core.lines import Lines, line_end, line_first, line_kernel, make_lines, on_line
+from ..core.boundary import finite
 from ..core.transfer_kernels import clamp_to_domain
 from .curvature import CENTRING_SHIFT, CURVATURE_AVERAGING, average_curvature, column_heights, height_fraction, surface_curvature
 
@@ -203,7 +204,7 @@ def other_cell(x: wp.vec3, c: wp.vec3i, geo: GridGeometry):
 def count_grid_particles(geo: GridGeometry, particles: Particles, count: wp.array3d(dtype=wp.int32)):
     """Liquid and gas particles per cell where they are now (after g2p moved them)."""
     p = wp.tid()
-    if particles.active[p] != ACTIVE or particles.phase[p] > PHASE_GAS or not wp.isfinite(particles.x[p]):
+    if particles.active[p] != ACTIVE or particles.phase[p] > PHASE_GAS or not finite(particles.x[p]):
         return
     c = cell_of(clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim), geo.origin, geo.dx)
     wp.atomic_add(count, c[0], c[1], c[2], 1)
@@ -214,7 +215,7 @@ def film_departures(dt: float, geo: GridGeometry, films: Films, particles: Parti
                     leaving: wp.array3d(dtype=wp.int32), first: wp.array3d(dtype=wp.int32)):
     """Per cell, how many film particles would retract out of it, and the lowest index among them."""
     p = wp.tid()
-    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not finite(particles.x[p]):
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)  # its cell is inside the arrays
     c = cell_of(xp, geo.origin, geo.dx)
@@ -237,7 +238,7 @@ def retract_gas_films(start: int, dt: float, geo: GridGeometry, films: Films, co
     start + tid (Simulation.launch_particles: each writes only its own position).
     """
     p = wp.tid() + start
-    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not wp.isfinite(particles.x[p]):
+    if particles.active[p] == 0 or particles.phase[p] != PHASE_GAS or not finite(particles.x[p]):
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
     c = cell_of(xp, geo.origin, geo.dx)

@@ -45,7 +45,14 @@ def make_problem(interior, dim, *, surface=None, bubble=None, dx=None, seed=0):
     rho = np.where(gas, RHO_G, RHO_L)
     dt = 0.5 * dx / np.sqrt(9.81 * dx)
     extra = np.where(gas, 1.0 / (101325.0 * dt * dt), 0.0)
-    faces = []
+    faces = face_weights(types, rho, dim, rng)
+    b = np.where(types == FLUID, rng.normal(size=shape), 0.0)
+    return types, faces, extra, b, dx
+
+
+def face_weights(types, rho, dim, rng):
+    """make_problem's face weights of cells `types` with densities `rho`."""
+    shape, faces = types.shape, []
     for a in range(3):
         fshape = list(shape)
         fshape[a] += 1
@@ -62,8 +69,7 @@ def make_problem(interior, dim, *, surface=None, bubble=None, dx=None, seed=0):
             theta = rng.uniform(0.1, 1.0, size=both.shape)
             w[inner] = np.where(both, 1.0 / rho_face, np.where(surf, 1.0 / (rho_fluid * theta), 0.0))
         faces.append(w)
-    b = np.where(types == FLUID, rng.normal(size=shape), 0.0)
-    return types, faces, extra, b, dx
+    return faces
 
 
 def dense_matrix(system, dx, dim):
@@ -288,3 +294,71 @@ def test_recorded_launches_are_kept_between_solves_and_never_replayed_stale(monk
         boxes.append(kept.box)
         np.testing.assert_array_equal(answers[0], answers[1], err_msg=f"solve {step}")
     assert boxes[0] == boxes[1] and boxes[2] != boxes[1]  # the sequence moved the box once
+
+
+def falling_block(shape, lo, hi, seed):
+    """A liquid block [lo, hi) with a free surface all round, in a closed box of `shape` cells (walls
+    on its outer layer): make_problem's face weights and a random right-hand side."""
+    rng = np.random.default_rng(seed)
+    types = np.full(shape, EMPTY, np.int32)
+    types[tuple(slice(a, b) for a, b in zip(lo, hi))] = FLUID
+    for a in range(3):
+        for end in (0, -1):
+            idx = [slice(None)] * 3
+            idx[a] = end
+            types[tuple(idx)] = SOLID_FREE_SLIP
+    faces = face_weights(types, np.full(shape, RHO_L), 3, rng)
+    b = np.where(types == FLUID, rng.normal(size=shape), 0.0)
+    return types, faces, np.zeros(shape), b, 1.0 / (shape[0] - 2)
+
+
+def test_recorded_launches_follow_a_moving_box(monkeypatch):
+    # The falling block of the peer benchmark moves the fluid's box every step: the solver keeps its
+    # recorded launches (the CG's and every V-cycle level's) and moves them to the new box rather than
+    # recording them again (core/launch.Slabs). Each answer must be a fresh solver's, bit for bit: a
+    # launch left on the old box (its slab, its dims, the planes it sums, a level's box) would differ.
+    from warp_mpm_bubbles.core.threads import SPLIT_CELLS, Parallel
+
+    shape, size, tol = (34, 34, 34), 24, 1e-6
+    # (low corner, extent): the first solve records; then a pure translation, one that also makes the
+    # box 3 planes longer along x (the slabs' dims, the planes summed: the box's first and last planes
+    # hold no fluid, so a count of planes off by one would not show), 1 shorter along x and 2 along y,
+    # and the same box again.
+    blocks = [((5, 8, 5), (24, 24, 24)), ((5, 7, 5), (24, 24, 24)), ((5, 6, 5), (27, 24, 24)),
+              ((6, 5, 4), (26, 22, 24)), ((6, 5, 4), (26, 22, 24))]
+    kept = PressureSolver(shape, 3, 1.0 / (shape[0] - 2), DEVICE, parallel=Parallel(2))
+    system = None
+    records = []
+    launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda *a, **kw: (records.append(kw.get("record_cmd", False)), launch(*a, **kw))[1])
+    b_kept, x_kept = (wp.zeros(shape, dtype=float, device=DEVICE) for _ in range(2))
+    boxes = []
+    for step, (lo, extent) in enumerate(blocks):
+        types, faces, extra, b_np, dx = falling_block(shape, lo, tuple(l + e for l, e in zip(lo, extent)), seed=step)
+        fresh_system, n_fluid, singular = PressureSystem.from_numpy(types, faces, extra, dx, 3, DEVICE)
+        assert not singular
+        if system is None:
+            system = PressureSystem.from_numpy(types, faces, extra, dx, 3, DEVICE)[0]
+        for dst, src in zip((system.types, *system.inv_rho, system.diag, system.extra_diag),
+                            (fresh_system.types, *fresh_system.inv_rho, fresh_system.diag, fresh_system.extra_diag)):
+            wp.copy(dst, src)  # the simulation's arrays are written in place, step after step
+        answers = []
+        for solver, sys_, b, x in ((kept, system, b_kept, x_kept),
+                                   (PressureSolver(shape, 3, dx, DEVICE, parallel=Parallel(2)), fresh_system,
+                                    wp.zeros(shape, dtype=float, device=DEVICE), wp.zeros(shape, dtype=float, device=DEVICE))):
+            b.assign(b_np.astype(np.float32))
+            x.zero_()  # from rest: the fresh solver's start
+            records.clear()
+            info = solver.solve(sys_, b, x, tol=tol, max_iter=200, singular=False, n_fluid=n_fluid,
+                                preconditioner="multigrid")
+            assert info.converged
+            if solver is kept and step > 0:
+                assert not any(records), f"solve {step} recorded {sum(records)} launches: the box's move was not kept"
+            answers.append(x.numpy())
+        boxes.append(kept.box)
+        np.testing.assert_array_equal(answers[0], answers[1], err_msg=f"solve {step}")
+    extents = [tuple(h - l for l, h in zip(*box)) for box in boxes]
+    assert len(set(boxes[:4])) == 4 and boxes[4] == boxes[3]  # the box moved in every solve but the last
+    assert extents[0] == extents[1] and extents[2][0] != extents[1][0] and extents[3][1] != extents[2][1]
+    assert all(np.prod(e) >= SPLIT_CELLS for e in extents)  # 2 threads split the finest launches in slabs
+    assert kept.slabs.launches[0] and len(kept.slabs.walks) == 2  # the slabs that moved held the launches

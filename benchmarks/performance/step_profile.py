@@ -12,8 +12,10 @@ Four measurements, in one process:
 - the Hysing tank (benchmarks/validation/convergence.py's hysing_2d): after --warmup steps, per step:
   launches by kind (direct `wp.launch`, recordings, replays of recorded ones) and by kernel, kernel
   invocations and the CPU seconds of the thread inside Warp's native call (summed over threads: the
-  "kernel bodies"; the rest of a step's CPU seconds is the host's), the same for the pressure solve
-  alone with its CG iterations (invocations per iteration);
+  "kernel bodies"; the rest of a step's CPU seconds is the host's), the calling thread's CPU seconds
+  outside kernels (the host's serial part: the other threads wait for it) and the calls it handed to
+  the other threads, the same for the pressure solve alone with its CG iterations (invocations per
+  iteration);
 - the stream bandwidth: numpy copies of 256 MB, on one thread and on two at once (read + write bytes,
   over each copying thread's CPU seconds);
 - the peer block (benchmarks/performance/peer_comparison.py's scene): the CPU seconds of p2g's and
@@ -100,10 +102,12 @@ class LaunchCounter:
         self.context, self.lock = context, threading.Lock()
         self.kinds, self.kernels = collections.Counter(), collections.Counter()
         self.body_s, self.invokes = collections.Counter(), collections.Counter()
+        self.caller, self.caller_body_s = threading.get_ident(), 0.0  # the thread that entered: the step's
+        self.handoffs = 0  # calls handed to another thread (core/threads.Parallel.run)
 
     def __enter__(self):
-        ctx, self.saved = self.context, (wp.launch, self.context.invoke, self.context.Launch.launch)
-        launch, invoke, replay = self.saved
+        ctx, self.saved = self.context, (wp.launch, self.context.invoke, self.context.Launch.launch, Parallel.run)
+        launch, invoke, replay, run = self.saved
 
         def counted_launch(kernel, *a, **kw):
             self.kinds["record" if kw.get("record_cmd") else "wp.launch"] += 1
@@ -118,28 +122,39 @@ class LaunchCounter:
             try:
                 return invoke(kernel, *a)
             finally:
+                spent = time.thread_time() - start
                 with self.lock:
-                    self.body_s[kernel.key] += time.thread_time() - start
+                    self.body_s[kernel.key] += spent
                     self.invokes[kernel.key] += 1
+                    if threading.get_ident() == self.caller:
+                        self.caller_body_s += spent
 
-        wp.launch, ctx.invoke, ctx.Launch.launch = counted_launch, timed_invoke, counted_replay
+        def counted_run(parallel, calls):
+            if parallel.threads > 1:
+                self.handoffs += min(len(calls), parallel.threads) - 1
+            return run(parallel, calls)
+
+        wp.launch, ctx.invoke, ctx.Launch.launch, Parallel.run = counted_launch, timed_invoke, counted_replay, counted_run
         return self
 
     def __exit__(self, *exc):
-        wp.launch, self.context.invoke, self.context.Launch.launch = self.saved
+        wp.launch, self.context.invoke, self.context.Launch.launch, Parallel.run = self.saved
 
 
 def profile_steps(sim, steps: int) -> dict:
     """Per step: wall and CPU ms, launches by kind, kernel invocations and kernel-body ms; the solve's
     share; the slowest kernels."""
-    solve, info = sim.solver.solve, {"s": 0.0, "cpu": 0.0, "body": 0.0, "invokes": 0, "iterations": 0}
+    solve = sim.solver.solve
+    info = {"s": 0.0, "cpu": 0.0, "body": 0.0, "invokes": 0, "iterations": 0, "host": 0.0}
 
     def timed_solve(*a, **kw):
         before, count = sum(counter.body_s.values()), sum(counter.invokes.values())
         start, cpu = time.perf_counter(), time.process_time()
+        caller, caller_body = time.thread_time(), counter.caller_body_s
         result = solve(*a, **kw)
         info["s"] += time.perf_counter() - start
         info["cpu"] += time.process_time() - cpu
+        info["host"] += time.thread_time() - caller - (counter.caller_body_s - caller_body)
         info["body"] += sum(counter.body_s.values()) - before
         info["invokes"] += sum(counter.invokes.values()) - count
         info["iterations"] += result.iterations
@@ -150,16 +165,23 @@ def profile_steps(sim, steps: int) -> dict:
     try:
         with LaunchCounter() as counter:
             s0, wall, cpu = sim.stats.steps, time.perf_counter(), time.process_time()
+            caller = time.thread_time()
             for _ in range(steps):
                 sim.step(sim.stable_dt())
+            caller = time.thread_time() - caller
             wall, cpu, n = time.perf_counter() - wall, time.process_time() - cpu, sim.stats.steps - s0
     finally:
         sim.solver.solve = solve
     ms = lambda s: round(1e3 * s / n, 3)  # noqa: E731
     return {"steps": n, "wall_ms": ms(wall), "cpu_ms": ms(cpu), "stages_ms": {k: ms(v) for k, v in sim.timer.seconds.items()},
+            # The calling thread's CPU outside kernels: the host's serial part (the other threads wait).
+            "calling_thread": {"cpu_ms": ms(caller), "kernel_body_ms": ms(counter.caller_body_s),
+                               "host_ms": ms(caller - counter.caller_body_s)},
+            "handoffs_per_step": counter.handoffs / n,
             "launches_per_step": {k: v / n for k, v in counter.kinds.items()},
             "invokes_per_step": sum(counter.invokes.values()) / n, "kernel_body_ms": ms(sum(counter.body_s.values())),
-            "solve": {"ms": ms(info["s"]), "cpu_ms": ms(info["cpu"]), "kernel_body_ms": ms(info["body"]), "invokes_per_step": info["invokes"] / n,
+            "solve": {"ms": ms(info["s"]), "cpu_ms": ms(info["cpu"]), "kernel_body_ms": ms(info["body"]),
+                      "calling_thread_host_ms": ms(info["host"]), "invokes_per_step": info["invokes"] / n,
                       "cg_iterations_per_step": info["iterations"] / n,
                       "invokes_per_iteration": info["invokes"] / max(info["iterations"], 1)},
             "kernels": {k: {"ms": ms(v), "per_step": counter.invokes[k] / n, "us_each": 1e6 * v / counter.invokes[k]}
@@ -221,7 +243,7 @@ def peer_bounds(profile: dict, sim, bandwidth: float) -> dict:
 
 def main(argv=None):
     ap = harness.parser(__doc__.split("\n")[0], quick="Hysing at 10 cells, a 16^3 peer block, fewer steps")
-    ap.add_argument("--hysing", type=int, default=40, help="Hysing tank: cells across (40)")
+    ap.add_argument("--hysing", type=int, default=40, help="Hysing tank: cells across (40; 0: skip)")
     ap.add_argument("--peer-grid", type=int, default=64, help="the peer block's grid (64; 0: skip)")
     ap.add_argument("--warmup", type=int, default=20, help="untimed steps first (20)")
     ap.add_argument("--steps", type=int, default=40, help="profiled steps of the Hysing tank (40; the peer block: a fifth)")
@@ -235,11 +257,12 @@ def main(argv=None):
     from warp_mpm_bubbles.core.simulation import Simulation
 
     data = {"launch_costs_us": launch_costs(2000 if args.quick else 20000)}
-    with tempfile.TemporaryDirectory() as tmp:
-        sim = Simulation(scene(CASES["hysing_2d"], args.hysing, tmp), args.device)
-        for _ in range(args.warmup):
-            sim.step(sim.stable_dt())
-        data["hysing"] = {"cells": args.hysing, "particles": sim.num_particles, **profile_steps(sim, args.steps)}
+    if args.hysing:
+        with tempfile.TemporaryDirectory() as tmp:
+            sim = Simulation(scene(CASES["hysing_2d"], args.hysing, tmp), args.device)
+            for _ in range(args.warmup):
+                sim.step(sim.stable_dt())
+            data["hysing"] = {"cells": args.hysing, "particles": sim.num_particles, **profile_steps(sim, args.steps)}
     data["stream_GBps"] = stream_bandwidth()
     if args.peer_grid:
         with tempfile.TemporaryDirectory() as tmp:
@@ -260,11 +283,16 @@ def markdown(d: dict) -> str:
         if name in d:
             p, s = d[name], d[name]["solve"]
             kinds = ", ".join(f"{k} {v:.1f}" for k, v in p["launches_per_step"].items())
-            rows.append([name, f"{p['particles']:,}", f"{p['wall_ms']:.1f} / {p['cpu_ms']:.1f}", kinds,
+            kinds += f", hand-offs {p['handoffs_per_step']:.1f}"
+            rows.append([name, f"{p['particles']:,}", f"{p['wall_ms']:.1f} / {p['cpu_ms']:.1f}",
+                         f"{p['calling_thread']['host_ms']:.1f}", kinds,
                          f"{p['invokes_per_step']:.0f}", f"{p['kernel_body_ms']:.1f}", f"{s['ms']:.1f} / {s['cpu_ms']:.1f}",
-                         f"{s['kernel_body_ms']:.1f}", f"{s['cg_iterations_per_step']:.2f}", f"{s['invokes_per_iteration']:.1f}"])
-    steps = harness.markdown_table(["scene", "particles", "step ms: wall / CPU", "launches per step", "invocations",
-                                    "kernel bodies, CPU ms", "solve ms: wall / CPU", "solve's kernel bodies, CPU ms", "CG iterations",
+                         f"{s['kernel_body_ms']:.1f}", f"{s['calling_thread_host_ms']:.1f}", f"{s['cg_iterations_per_step']:.2f}",
+                         f"{s['invokes_per_iteration']:.1f}"])
+    steps = harness.markdown_table(["scene", "particles", "step ms: wall / CPU", "calling thread outside kernels, CPU ms",
+                                    "launches per step", "invocations",
+                                    "kernel bodies, CPU ms", "solve ms: wall / CPU", "solve's kernel bodies, CPU ms",
+                                    "solve: calling thread outside kernels, CPU ms", "CG iterations",
                                     "invocations per iteration"], rows)
     out = "## Host cost per launch\n\n" + costs + "\n## Per step\n\n" + steps
     out += "\nStream bandwidth (numpy copy, read + write): " + ", ".join(

@@ -11,6 +11,7 @@ from collections import Counter
 import warp as wp
 
 from . import threads
+from .lines import Lines, set_slab, slab_planes
 from .threads import Parallel, line_slabs, split
 
 
@@ -34,24 +35,87 @@ def launch_key(value):
 class Recorded:
     """Recorded launches (`wp.launch(..., record_cmd=True)`) kept while what they were recorded for
     stays the same, and replayed: recording packs every argument in Python, as costly as a launch
-    (about 15 us against 2.5 us for a replay), and a solve whose box and arrays did not change since
-    the last step would record the same launches again. `keep(key)` starts over when the key (the
-    box, the arrays, the settings the launches bake in) differs from the last one's."""
+    (about 15 us against 2.5 us for a replay), and a solve whose arrays did not change since the last
+    step would record the same launches again. `keep(key)` starts over when the key (the arrays, the
+    settings the launches bake in) differs from the last one's. A batch recorded with a `move` is
+    re-targeted by `move()` when the box it walks moved (the falling block of the peer benchmark
+    moves the fluid's box every step): its launches walk the box through `Slabs`, whose structs move
+    in place, and `move` sets what else depends on the box (a count of planes)."""
 
     def __init__(self):
-        self.key, self.batches = None, {}
+        self.key, self.batches, self.movers = None, {}, []
 
-    def keep(self, *context):
+    def keep(self, *context) -> bool:
+        """Keep the batches if the key is the last one's (True), else drop them (False)."""
         key = launch_key(context)
-        if key != self.key:
-            self.key, self.batches = key, {}
+        if key == self.key:
+            return True
+        self.key, self.batches, self.movers = key, {}, []
+        return False
 
-    def get(self, tag, record):
-        """The batch recorded under `tag` since the last change of key, else `record()`'s."""
+    def get(self, tag, record, move=None):
+        """The batch recorded under `tag` since the last change of key, else `record()`'s; `move(batch)`
+        is called by every later `move()`."""
         batch = self.batches.get(tag)
         if batch is None:
             batch = self.batches[tag] = record()
+            if move is not None:
+                self.movers.append((move, batch))
         return batch
+
+    def move(self):
+        """Re-target every kept batch that was recorded with a `move` to the box as it is now."""
+        for move, batch in self.movers:
+            move(batch)
+
+
+class Slabs:
+    """The slabs of a box that moves (`split_lines`), as `Lines` structs kept from solve to solve, and the
+    recorded launches that walk them. Warp packs a struct argument of a recorded launch as a reference
+    to the struct's ctypes (`record` checks it), and copies it into the kernel's arguments at every
+    replay; so `move` re-targets every launch recorded here by writing the new slabs into the same
+    structs, and sets the dims of the launches whose slab's extent changed (`Launch.set_dim`, about
+    3 us, against about 15 us to record the launch again). The number of slabs is fixed: a box that
+    splits into another number needs new Slabs (and new recordings)."""
+
+    def __init__(self, count: int):
+        self.walks = [Lines() for _ in range(count)]
+        self.dims = [None] * count
+        self.launches = [[] for _ in range(count)]
+
+    def move(self, box: Lines, dims):
+        """The slabs of box (walked with launch dims `dims`), in the same structs."""
+        planes = slab_planes(dims[0], len(self.walks))
+        if len(planes) != len(self.walks):
+            raise ValueError(f"a box of {dims[0]} planes makes {len(planes)} slabs, not {len(self.walks)}")
+        for q, (a, b) in enumerate(planes):
+            set_slab(self.walks[q], box, a, b)
+            d = (b - a, *dims[1:])
+            if d != self.dims[q]:
+                self.dims[q] = d
+                for launch in self.launches[q]:
+                    launch.set_dim(d)
+
+    def record(self, kernel, inputs, device) -> list:
+        """A batch of recorded launches of `kernel`, one a slab, with arguments inputs(walk)."""
+        batch = []
+        for walk, d, launches in zip(self.walks, self.dims, self.launches):
+            launch = record(kernel, d, inputs(walk), device)
+            launches.append(launch)
+            batch.append(launch)
+        return batch
+
+
+def record(kernel, dims, inputs, device):
+    """`wp.launch(..., record_cmd=True)`, checking that the recorded launch holds its struct arguments
+    by reference, so that a struct written in place (a moved box, core/launch.Slabs) moves the launch:
+    true of Warp 1.19, whose recorded launch keeps each struct's own ctypes."""
+    launch = wp.launch(kernel, dims, inputs=inputs, device=device, record_cmd=True)
+    for value in inputs:
+        if wp.types.is_struct(value) and not any(p is value.__ctype__() for p in launch.params):
+            raise RuntimeError(f"the recorded launch of {kernel.key} holds a copy of its {type(value).__name__} "
+                               f"argument: a struct moved in place would not move it (a Warp other than 1.19?)")
+    return launch
 
 
 class Launcher:

@@ -76,18 +76,27 @@ def make_lines(lo, hi, dim: int, device) -> tuple[Lines, tuple[int, int, int]]:
     return box, tuple(dims)
 
 
+def slab_planes(n: int, parts: int) -> list[tuple[int, int]]:
+    """The planes [a, b) of each slab that split_lines cuts n planes into: `parts` of them, at most n
+    (but at least one)."""
+    parts = max(1, min(parts, n))
+    return [(n * q // parts, n * (q + 1) // parts) for q in range(parts)]
+
+
+def set_slab(slab: Lines, box: Lines, a: int, b: int):
+    """slab = planes [a, b) of box (counted from its low end along axis 0), written in place."""
+    slab.lo = wp.vec3i(box.lo[0] + a, box.lo[1], box.lo[2])
+    slab.hi = wp.vec3i(box.lo[0] + b, box.hi[1], box.hi[2])
+    slab.axis, slab.length = box.axis, box.length
+
+
 def split_lines(box: Lines, dims, parts: int) -> list[tuple[Lines, tuple[int, int, int]]]:
     """box as `parts` slabs along axis 0 (never the axis threads walk), each with its launch dims; a
     kernel that writes only the cells it walks runs on the slabs at once with the box's result."""
-    n = dims[0]
-    parts = max(1, min(parts, n))
     out = []
-    for q in range(parts):
-        a, b = n * q // parts, n * (q + 1) // parts
+    for a, b in slab_planes(dims[0], parts):
         slab = Lines()
-        slab.lo = wp.vec3i(box.lo[0] + a, box.lo[1], box.lo[2])
-        slab.hi = wp.vec3i(box.lo[0] + b, box.hi[1], box.hi[2])
-        slab.axis, slab.length = box.axis, box.length
+        set_slab(slab, box, a, b)
         out.append((slab, (b - a, dims[1], dims[2])))
     return out
 

@@ -53,8 +53,8 @@ import warp as wp
 
 from .grid import EMPTY, FLUID
 from .cells import at, unit
-from .launch import launch_key
-from .lines import Lines, in_box, line_end, line_first, make_lines, on_line, split_lines
+from .launch import Recorded, Slabs, record
+from .lines import Lines, in_box, line_end, line_first, make_lines, on_line, slab_planes
 from . import threads
 from .threads import Parallel
 
@@ -435,7 +435,7 @@ class MultigridPreconditioner:
         self.sweeps, self.laplacian_scale = sweeps, laplacian_scale
         self.shapes = level_shapes(shape, dim)
         self.not_done = wp.zeros(1, dtype=wp.int32, device=device)  # the flag when no CG passes one
-        self.levels = [None]  # the finest Level wraps the system's arrays, set by build()
+        self.levels = [Level()]  # the finest Level wraps the system's arrays, set by build()
         self.b, self.x = [None], [None]
         for s in self.shapes[1:]:
             zeros = lambda sh=s, dtype=float: wp.zeros(sh, dtype=dtype, device=device)  # noqa: E731
@@ -452,7 +452,8 @@ class MultigridPreconditioner:
         self.factor = wp.zeros((n, n), dtype=wp.float64, device=device)
         self.inv_pivot = wp.zeros(n, dtype=wp.float64, device=device)
         self.y = wp.zeros(n, dtype=wp.float64, device=device)
-        self._key = None  # what the recorded launches were recorded for (build)
+        self.recorded = Recorded()  # the coarse operators' and the V-cycles' recorded launches (build)
+        self.slabs = {}  # (level, number of slabs): the Slabs that recorded launches walk on that level
 
     def _launch(self, kernel, shape, inputs):
         wp.launch(kernel, shape, inputs=inputs, device=self.device)
@@ -465,40 +466,41 @@ class MultigridPreconditioner:
         self.boxes = [tuple(map(tuple, box)) if box is not None else ((0, 0, 0), self.shapes[0])]
         for _ in self.shapes[1:]:
             self.boxes.append(coarse_box(self.boxes[-1], self.dim))
-        F = Level()
+        # The Levels are kept from solve to solve and written in place: the recorded launches hold them
+        # by reference (core/launch.Slabs), so a level's new box reaches every launch that takes it.
+        F = self.levels[0]
         F.types = system.types
         F.w_u, F.w_v, F.w_w = system.inv_rho
         F.diag, F.extra, F.dirichlet = system.diag, system.extra_diag, system.diag  # dirichlet unused here
         F.scale, F.dim, F.finest = self.inv_dx2, self.dim, 1
-        self.levels[0] = F
         self.dims = []  # each level's launch: a thread per line of its box (core/lines.py)
         for L, (lo, hi) in zip(self.levels, self.boxes):
             L.box, dims = make_lines(lo, hi, self.dim, self.device)
             self.dims.append(dims)
             L.done = self.not_done if done is None else done
-        # Launches are recorded once and replayed while the levels (their boxes, the system's arrays,
-        # the flag) stay the same from solve to solve: recording packs every argument in Python.
-        key = launch_key((self.levels, self.parallel.threads))
-        if key != self._key:
-            self._key = key
-            self._cycles = {}  # the V-cycle's recorded launches, per (r, z)
-            self._coarse = [self._parts(build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk,
-                                                                         self.laplacian_scale], work_level=lvl - 1)
-                            for lvl in range(1, len(self.levels))]
-        for batch in self._coarse:  # a row reads only its children: slabs run at once
+        # Launches are recorded once and replayed while the levels' arrays, the flag, the threads and
+        # the number of slabs of each launch stay the same from solve to solve (recording packs every
+        # argument in Python); a moved box moves them (Slabs.move).
+        split = [(self._count(lvl, lvl), self._count(lvl, lvl - 1)) for lvl in range(len(self.levels))]
+        if not self.recorded.keep(F.types, system.inv_rho, F.diag, F.extra, F.done, self.parallel.threads, split):
+            self.slabs = {}
+        for (lvl, count), slabs in self.slabs.items():
+            slabs.move(self.levels[lvl].box, self.dims[lvl])
+        for lvl in range(1, len(self.levels)):  # a row reads only its children: slabs run at once
+            batch = self.recorded.get(("coarse", lvl), lambda: self._parts(
+                build_coarse, lvl, lambda walk: [self.levels[lvl - 1], self.levels[lvl], walk, self.laplacian_scale],
+                work_level=lvl - 1))
             self.parallel.run([part.launch for part in batch])
         self._launch(factor_coarsest, 1, [self.levels[-1], self.factor, self.inv_pivot])
 
     def apply(self, r, z):
         """z = M^-1 r (one V-cycle from z = 0 on the box); r and z are fine-level cell arrays, z is 0
-        outside the box. The cycle's launches are recorded once while the levels stay the same (Warp
-        packs a launch's arguments in Python: 15-30 us a launch, about 10 ms a step at the peer block)
-        and replayed."""
-        key = (r.ptr, z.ptr)
-        if key not in self._cycles:
-            self._cycles[key] = self._record_cycle(r, z)
+        outside the box. The cycle's launches are recorded once while the levels' arrays stay the same
+        (Warp packs a launch's arguments in Python: 15-30 us a launch, about 10 ms a step at the peer
+        block), moved with the box (build) and replayed."""
+        cycle = self.recorded.get(("cycle", r.ptr, z.ptr), lambda: self._record_cycle(r, z))
         z.zero_()
-        for batch in self._cycles[key]:
+        for batch in cycle:
             if len(batch) == 1:
                 batch[0].launch()
             else:
@@ -527,14 +529,25 @@ class MultigridPreconditioner:
         return batches
 
     def _record(self, kernel, dims, inputs):
-        return wp.launch(kernel, dims, inputs=inputs, device=self.device, record_cmd=True)
+        return record(kernel, dims, inputs, self.device)
+
+    def _count(self, lvl, work_level):
+        """The slabs of a launch over level lvl's box whose work is level work_level's cells (the level
+        itself, or for the restriction and the coarse operators the finer one): one per thread when
+        they number threads.SPLIT_CELLS or more (each slab costs a thread hand-off), else one."""
+        if work_level < 0:
+            return 1
+        work = math.prod(self.dims[work_level]) * self.levels[work_level].box.length
+        parts = self.parallel.threads if work >= threads.SPLIT_CELLS else 1
+        return len(slab_planes(self.dims[lvl][0], parts))
 
     def _parts(self, kernel, lvl, inputs, work_level=None):
-        """Recorded launches of `kernel` over level lvl's box, split into one slab per thread along
-        axis 0 when the cells it works on (level work_level's box, by default lvl's) number
-        threads.SPLIT_CELLS or more (each launch costs a thread hand-off)."""
-        walk, dims = self.levels[lvl].box, self.dims[lvl]
-        w = lvl if work_level is None else work_level
-        work = math.prod(self.dims[w]) * self.levels[w].box.length
-        parts = self.parallel.threads if work >= threads.SPLIT_CELLS else 1
-        return [self._record(kernel, d, inputs(w)) for w, d in split_lines(walk, dims, parts)]
+        """Recorded launches of `kernel` over level lvl's box, split into slabs by the cells it works on
+        (level work_level's box, by default lvl's: _count); they walk lvl's Slabs, which move with the
+        box."""
+        count = self._count(lvl, lvl if work_level is None else work_level)
+        slabs = self.slabs.get((lvl, count))
+        if slabs is None:
+            slabs = self.slabs[lvl, count] = Slabs(count)
+            slabs.move(self.levels[lvl].box, self.dims[lvl])
+        return slabs.record(kernel, inputs, self.device)

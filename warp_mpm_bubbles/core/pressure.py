@@ -24,10 +24,10 @@ from .active_box import reset_bounds
 from .grid import EMPTY, FLUID, PRECONDITIONERS
 from .kernel_args import (PlaneSums, PointPreconditioner, PressureOperator, plane_sums, point_preconditioner,
                           pressure_operator)
-from .launch import Recorded, launch_key
+from .launch import Recorded, Slabs, launch_key, record
 from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
-from .threads import Parallel, line_slabs
+from .threads import Parallel, line_slab_count
 
 wp.set_module_options({"enable_backward": False})
 
@@ -424,21 +424,27 @@ class PressureSolver:
         self.host_reads = 0  # reads from the device by the last solve (the box, then one per check)
         self.predicted = check_every  # iterations before the first check: the last solve's count
         self.box = ((0, 0, 0), tuple(shape))
+        self.planes_n = shape[0]  # planes of the box (along x): what sum_planes adds
         self.recorded = Recorded()  # the solve's recorded launches, kept from solve to solve
+        self.slabs = None  # the box's slabs that the recorded cell launches walk (solve)
+        self.sums = plane_sums(self.planes, 0)  # moved in place with the box, like the slabs
 
-    def _record(self, kernel, inputs, dims=None):
-        """One recorded launch of `kernel` (its inputs as given): a batch of one part, recorded once
-        while the solve's box and arrays stay the same (`self.recorded`)."""
-        return self.recorded.get((kernel.key, dims, launch_key(inputs)), lambda: [
-            wp.launch(kernel, dims or 1, inputs=inputs, device=self.device, record_cmd=True)])
+    def _tag(self, kernel, kind, inputs):
+        """A batch's tag in `self.recorded`: its kernel and arguments, the plane sums (which move with
+        the box) by name rather than by their first plane."""
+        return kernel.key, kind, launch_key(["sums" if v is self.sums else v for v in inputs])
+
+    def _record(self, kernel, inputs):
+        """One recorded launch of a one-thread kernel that does not depend on the box (its inputs as
+        given): a batch of one part, recorded once while the solve's arrays stay the same."""
+        return self.recorded.get(self._tag(kernel, "one", inputs), lambda: [record(kernel, 1, inputs, self.device)])
 
     def _record_cells(self, kernel, inputs):
         """Recorded launches of a cell kernel over the box, its first argument the walk: slabs of planes,
         one a thread, when the box is large enough to split (core/threads.py); a batch, recorded once
-        while the solve's box and arrays stay the same."""
-        return self.recorded.get((kernel.key, "cells", launch_key(inputs)), lambda: [
-            wp.launch(kernel, d, inputs=[walk, *inputs], device=self.device, record_cmd=True)
-            for walk, d in line_slabs(self.lines, self.dims, self.parallel.threads)])
+        while the solve's arrays stay the same, and moved with the box (`self.slabs`, `self.sums`)."""
+        return self.recorded.get(self._tag(kernel, "cells", inputs), lambda: self.slabs.record(
+            kernel, lambda walk: [walk, *inputs], self.device))
 
     def _run(self, batch, row=None):
         """Replay a batch's launches at once (setting `row` first, for the kernels that take one)."""
@@ -451,9 +457,13 @@ class PressureSolver:
             self.parallel.run([launch.launch for launch in batch])
 
     def _reduce(self, first_slot: int, count: int, out, out_slot: int):
-        """A batch: out[row, out_slot + t] = the planes' sum of slot first_slot + t (sum_planes)."""
-        n = self.box[1][0] - self.box[0][0]
-        return self._record(sum_planes, [self.done, self.planes, n, first_slot, count, out, 0, out_slot])
+        """A batch: out[row, out_slot + t] = the planes' sum of slot first_slot + t (sum_planes), over
+        the box's planes (their number set again when the box moves)."""
+        inputs = lambda n: [self.done, self.planes, n, first_slot, count, out, 0, out_slot]  # noqa: E731
+        return self.recorded.get(
+            self._tag(sum_planes, "planes", inputs(None)),
+            lambda: [record(sum_planes, 1, inputs(self.planes_n), self.device)],
+            move=lambda batch: batch[0].set_param_by_name("n", self.planes_n))
 
     def _find_box(self, types, x, region):
         """Mask x to the fluid cells and set self.box to the fluid bounding box grown by one cell."""
@@ -476,6 +486,7 @@ class PressureSolver:
         lo, hi = self.box
         self.inside = int(all(lo[a] > 0 and hi[a] < self.shape[a] for a in range(self.dim)))
         self.lines, self.dims = make_lines(*self.box, self.dim, self.device)
+        self.planes_n = hi[0] - lo[0]
 
     def _check(self):
         """Read the device's flag, iteration count and residual: the only read while iterating."""
@@ -485,8 +496,7 @@ class PressureSolver:
 
     def _sum_fluid(self, types, v, out_slot: int, squares: bool):
         """scalars[out_slot] = the sum of v (or of v^2) over the fluid cells."""
-        sums = plane_sums(self.planes, self.box[0][0])
-        self._run(self._record_cells(fluid_sums, [int(squares), self.done, types, v, sums]))
+        self._run(self._record_cells(fluid_sums, [int(squares), self.done, types, v, self.sums]))
         self._run(self._reduce(0, 1, self.scalars, out_slot))
 
     def _center(self, types, v, sums, row: int, slot: int, n: int):
@@ -505,9 +515,15 @@ class PressureSolver:
             return SolveInfo(0, 0.0, True)
         if self.rows.shape[0] < max_iter + 1:
             self.rows = wp.zeros((max_iter + 1, ROW), dtype=wp.float64, device=self.device)
-        # the launches recorded by the last solve replay as they are if its box, arrays and threads are these
-        self.recorded.keep(self.box, self.inside, self.parallel.threads, system.types, system.inv_rho, system.diag,
-                           system.extra_diag, b, x, self.rows)
+        # The launches recorded by the last solve replay if its arrays, threads and number of slabs are
+        # these (and whether the box touches the arrays' outer layer: `inside`), moved to this box.
+        slabs = line_slab_count(self.lines, self.dims, self.parallel.threads)
+        if not self.recorded.keep(slabs, self.inside, self.parallel.threads, system.types, system.inv_rho,
+                                  system.diag, system.extra_diag, b, x, self.rows):
+            self.slabs = Slabs(slabs)
+        self.slabs.move(self.lines, self.dims)
+        self.sums.plane0 = self.box[0][0]
+        self.recorded.move()
         for a in (self.rows, self.scalars, self.done, self.info):
             a.zero_()
         project = n_fluid if singular else 0
@@ -532,7 +548,7 @@ class PressureSolver:
     def _iterate(self, system, b, x, mode: int, project: int, tol: float, max_iter: int):
         """The PCG iterations from the warm start x; returns (iterations, relative residual squared)."""
         types, done, rows = system.types, self.done, self.rows
-        sums = plane_sums(self.planes, self.box[0][0])
+        sums = self.sums
         M = point_preconditioner(system.diag, mode)
         rz_slot = RZ_MG if mode == MULTIGRID else RZ
         A = pressure_operator(system, self.inv_dx2, self.dim)

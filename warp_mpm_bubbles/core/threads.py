@@ -28,7 +28,7 @@ import os
 import threading
 import weakref
 
-from .lines import split_lines
+from .lines import slab_planes, split_lines
 
 MAX_THREADS = 8  # p2g's parts each scan every particle's position: the scan's share grows with the count
 # A launch over a box this large (cells or faces) runs in slabs, one a thread: smaller ones cost less
@@ -135,9 +135,16 @@ class Parallel:
 def line_slabs(box, dims, threads: int) -> list:
     """A box of lines (core/lines.py: its Lines struct and launch dims) as the slabs of one launch on
     the CPU's threads: one a thread when it holds SPLIT_CELLS or more cells or faces, else itself."""
-    if threads > 1 and math.prod(dims) * box.length >= SPLIT_CELLS:
+    if line_slab_count(box, dims, threads) > 1:
         return split_lines(box, dims, threads)
     return [(box, dims)]
+
+
+def line_slab_count(box, dims, threads: int) -> int:
+    """How many slabs line_slabs cuts the box into."""
+    if threads > 1 and math.prod(dims) * box.length >= SPLIT_CELLS:
+        return len(slab_planes(dims[0], threads))
+    return 1
 
 
 def split(lo: int, hi: int, parts: int) -> list[int]:

@@ -45,8 +45,13 @@ class Recorded:
     def __init__(self):
         self.key, self.batches, self.movers = None, {}, []
 
-    def keep(self, *context) -> bool:
-        """Keep the batches if the key is the last one's (True), else drop them (False)."""
+    def keep(self, *context, box=None) -> bool:
+        """Keep the batches if the key is the last one's (True), else drop them (False). `box`: the box
+        the batches walk, part of the key only where moving in place does not reach recorded launches
+        (a Warp whose recorded launch copies its struct arguments, `record`): then a moved box records
+        them again, as it did before they could be moved."""
+        if not _structs_by_reference and box is not None:
+            context = (*context, box)
         key = launch_key(context)
         if key == self.key:
             return True
@@ -110,12 +115,17 @@ def record(kernel, dims, inputs, device):
     """`wp.launch(..., record_cmd=True)`, checking that the recorded launch holds its struct arguments
     by reference, so that a struct written in place (a moved box, core/launch.Slabs) moves the launch:
     true of Warp 1.19, whose recorded launch keeps each struct's own ctypes."""
+    global _structs_by_reference
     launch = wp.launch(kernel, dims, inputs=inputs, device=device, record_cmd=True)
     for value in inputs:
         if wp.types.is_struct(value) and not any(p is value.__ctype__() for p in launch.params):
-            raise RuntimeError(f"the recorded launch of {kernel.key} holds a copy of its {type(value).__name__} "
-                               f"argument: a struct moved in place would not move it (a Warp other than 1.19?)")
+            _structs_by_reference = False  # from now on a moved box records again (Recorded.keep)
     return launch
+
+
+# Whether recorded launches hold their struct arguments by reference (true of Warp 1.19; `record`
+# turns it off for good the first time a launch holds a copy, and the results stay right, only slower).
+_structs_by_reference = True
 
 
 class Launcher:

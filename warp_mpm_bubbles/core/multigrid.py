@@ -482,7 +482,8 @@ class MultigridPreconditioner:
         # the number of slabs of each launch stay the same from solve to solve (recording packs every
         # argument in Python); a moved box moves them (Slabs.move).
         split = [(self._count(lvl, lvl), self._count(lvl, lvl - 1)) for lvl in range(len(self.levels))]
-        if not self.recorded.keep(F.types, system.inv_rho, F.diag, F.extra, F.done, self.parallel.threads, split):
+        if not self.recorded.keep(F.types, system.inv_rho, F.diag, F.extra, F.done, self.parallel.threads, split,
+                                  box=self.boxes):
             self.slabs = {}
         for (lvl, count), slabs in self.slabs.items():
             slabs.move(self.levels[lvl].box, self.dims[lvl])

@@ -519,7 +519,7 @@ class PressureSolver:
         # these (and whether the box touches the arrays' outer layer: `inside`), moved to this box.
         slabs = line_slab_count(self.lines, self.dims, self.parallel.threads)
         if not self.recorded.keep(slabs, self.inside, self.parallel.threads, system.types, system.inv_rho,
-                                  system.diag, system.extra_diag, b, x, self.rows):
+                                  system.diag, system.extra_diag, b, x, self.rows, box=self.box):
             self.slabs = Slabs(slabs)
         self.slabs.move(self.lines, self.dims)
         self.sums.plane0 = self.box[0][0]

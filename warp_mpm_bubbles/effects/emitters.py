@@ -22,7 +22,9 @@ resumed run decides alike; one read, docs/host_syncs.md):
 - into the liquid: its particles are added and the fluid around makes room, the volume-preserving
   radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's gather uses it within 4 R), liquid and
   resolved gas alike, by as much as the bubble overlaps, everywhere, with the bubble's images
-  across the closed walls (effects/room.py). Before, the new gas sat on top of the water,
+  across the walls (effects/room.py: sources across closed walls, sinks across open ones). The
+  bubble's ball lies inside the domain (moved in from the walls by its radius), and a step's
+  bubbles whose balls overlap merge into one. Before, the new gas sat on top of the water,
   so water and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames).
   What the push carries past an open wall leaves (booked as outflow); past a closed one it is clamped;
 - into a domain the liquid cannot leave (no open wall but the top) with no room left for it (the

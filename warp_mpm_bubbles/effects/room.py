@@ -2,7 +2,8 @@
 
 The volume-preserving radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's `pushed_from`, which
 the sub-grid gather uses too), by as much as the bubble's ball overlaps, with no cut-off, and from
-the bubble's mirror images across the closed walls. Used by the emitters (effects/emitters.py).
+the bubble's mirror images across the walls (sources across the closed ones, sinks across the open
+ones the liquid drains through). Used by the emitters (effects/emitters.py).
 """
 
 from __future__ import annotations
@@ -139,7 +140,8 @@ def make_room_for(ctx, pushes: list[tuple], first_new: int, cells, top):
     """The fluid makes room for this step's new bubbles (pushes: (centre, R^d, site) each) by
     make_room's radial push, with an unbounded reach, each bubble's R^d cut to the volume of the
     fluid its ball overlaps (overlapped_volume, before any push; no read), the bubble pushing
-    along with its mirror images across the closed walls (mirror_images).
+    along with its mirror images across the walls (mirror_images): sources across the closed ones,
+    sinks across the open ones, which carry what the bubble displaces out through them.
 
     Unbounded: the push keeps the volume of what it moves, but cut off at a reach (it was 4 R)
     it moves the fluid inside onto the fluid outside, which stays: the bubble's whole volume
@@ -158,8 +160,10 @@ def make_room_for(ctx, pushes: list[tuple], first_new: int, cells, top):
     ctx.launch(overlapped_volume, first_new, [dev(centres.astype(np.float64), wp.vec3d),
                                               dev(radius_pow.astype(np.float64), wp.float64), len(pushes),
                                               first_new, dim, p.phase, p.active, p.x, p.vol0, p.J, held])
-    # Each bubble's sinks first, so its own push, after them, clears its ball (pulled after it, the
-    # liquid between the ball and a sink came back into the ball: 0.06 of the box in scene 1045).
+    # Each bubble's sinks first, so its own push, after them, clears its ball: pulled after it, the
+    # liquid between the ball and a sink came back into the ball (scene 1045, reduced: liquid and
+    # gas 1.06 of the box after the first bubble, 1.00 with the sinks first). The sources keep their
+    # order (the bubble, then its images), so a domain without open walls pushes as before.
     images = [(c, k, sign) for k, centre in enumerate(centres)
               for c, sign in sorted(mirror_images(ctx, centre), key=lambda image: image[1])]
     source = np.array([k for _, k, _ in images], np.int32)

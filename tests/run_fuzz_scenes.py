@@ -475,9 +475,8 @@ HARD_SCENES = {
     # bubbles a step (scene 1979): the push making each bubble's room carried out through the open
     # wall only part of what it moved and crowded the rest against the closed walls, into gas whose
     # J does not know it is squeezed: liquid and gas 1.13 then 1.19 of the box, silently (exit 0).
-    # Now the push's images across the open wall are sinks (effects/room.py), and a step's bubbles
-    # that overlap merge (they were laid in one ball, at twice the gas's density): 1.01 by frame 1;
-    # 1.09 by frame 2, which the fill guard (io/fill.py) stops by the injector's key (exit 1).
+    # Now the push's images across the open wall are sinks (effects/room.py): 1.07 by frame 1, which
+    # the fill guard (io/fill.py) stops by the injector's key (exit 1); scene 1979 itself: 1.02, 1.04.
     "air_stone_in_a_full_tank_open_at_the_side": (
         '[domain]\nsize = [0.22, 0.16]\ncell_size = 0.02\nwalls = {{ x_min = "open" }}\n[materials.water]\n'
         '[materials.air]\nkind = "gas"\n' + _WATER_BOX.format(w=0.22, h=0.16)

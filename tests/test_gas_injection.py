@@ -8,7 +8,7 @@
   p V = p_atm V0 for isothermal gas, the water's volume unchanged;
 - a closed box the water fills has no room for a bubble: the run stops, naming the injector; one
   with an open wall lets the water the bubble displaces out through it;
-- a bubble is released inside the domain, and a step's bubbles that overlap merge into one;
+- a bubble is released inside the domain;
 - entrained air is booked as taken from the atmosphere: the gas budget's total stays constant.
 """
 
@@ -127,29 +127,6 @@ def test_a_bubble_reaching_past_a_wall_is_released_inside_the_domain(tmp_path):
     assert np.linalg.norm(x - r, axis=1).max() <= r * (1 + 1e-6)  # all in the ball moved to (r, r)
     rest = float(p["mass"][is_gas].astype(np.float64).sum()) / RHO_AIR
     assert rest == pytest.approx(math.pi * r * r * DX, rel=1e-6)  # the whole bubble
-
-
-def test_bubbles_of_one_step_that_overlap_merge(tmp_path):
-    """An air stone without spread releasing three bubbles in one step: one ball of the three
-    bubbles' volume (radius sqrt(3) R in 2D), its particles at the bubble's spacing. Laid apart,
-    all three bubbles' particles sat in one ball of radius R, three times as dense as their J
-    says, and the push cleared room for all three around it (scene 1979: liquid and gas 1.19 of
-    the box)."""
-    r, centre = 0.01, np.array([0.05, 0.04])
-    sim = simulation(tmp_path, water(0.09) + injector((0.05, 0.04), 1000.0, r))
-    sim.stage("emitters").begin_step(sim.ctx, 3.5e-3)  # three bubbles due
-    p, is_gas = gas(sim)
-    x = p["positions"][is_gas, :2].astype(np.float64)
-    merged = math.sqrt(3.0) * r
-    distance = np.linalg.norm(x - centre, axis=1)
-    assert distance.max() <= merged * (1 + 1e-6) and distance.max() > 1.2 * r  # one ball, three bubbles wide
-    rest = float(p["mass"][is_gas].astype(np.float64).sum()) / RHO_AIR
-    assert rest == pytest.approx(3 * math.pi * r * r * DX, rel=1e-6)
-    # at the bubble's density: the particles, each holding its share, are as many as the ball's area holds
-    spacing = DX / 2.0
-    assert is_gas.sum() == pytest.approx(math.pi * merged**2 / spacing**2, rel=0.15)
-    liquid = p["phase"] == PHASE_LIQUID  # the push cleared the merged ball
-    assert np.linalg.norm(p["positions"][liquid, :2] - centre, axis=1).min() > 0.9 * merged
 
 
 BOYLE_SCENE = water(0.07) + '[[shapes]]\ntype = "box"\nmaterial = "air"\nmin = [0.0, 0.07]\nmax = [0.1, 0.1]\n'

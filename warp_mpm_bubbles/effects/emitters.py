@@ -22,10 +22,9 @@ resumed run decides alike; one read, docs/host_syncs.md):
 - into the liquid: its particles are added and the fluid around makes room, the volume-preserving
   radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's gather uses it within 4 R), liquid and
   resolved gas alike, by as much as the bubble overlaps, everywhere, with the bubble's images
-  across the walls (effects/room.py: sources across closed walls, sinks across open ones). The
-  bubble's ball lies inside the domain (moved in from the walls by its radius), and a step's
-  bubbles whose balls overlap merge into one. Before, the new gas sat on top of the water,
-  so water and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames).
+  across the walls (effects/room.py: sources across closed walls, sinks across open ones), its
+  ball inside the domain (moved in from the walls by its radius). Before, the new gas sat on top
+  of the water, so water and gas together claimed more than the box (0.83 + 0.89 of a 2D box after two frames).
   What the push carries past an open wall leaves (booked as outflow); past a closed one it is clamped;
 - into a domain the liquid cannot leave (no open wall but the top) with no room left for it (the
   liquid's rest volume, the gas's and the new bubble's above the room): the run stops,
@@ -278,7 +277,7 @@ class EmitterStage(Stage):
         if layers:
             self._deliver(ctx, layers)
         if bubbles:
-            self._release(ctx, self._merged(bubbles))
+            self._release(ctx, bubbles)
 
     def _deliver(self, ctx, layers: list[tuple]):
         """Add this step's stream layers, each particle only where its cell is not crowded already:
@@ -361,35 +360,6 @@ class EmitterStage(Stage):
             b["volume"] = self._ball_volume(b["radius"])
         b["centre"][: self.dim] = np.clip(b["centre"][: self.dim], b["radius"], size - b["radius"])
         return b
-
-    def _merged(self, bubbles: list[dict]) -> list[dict]:
-        """This step's bubbles with those whose balls overlap (same material) merged, as touching
-        bubbles coalesce: one bubble of their summed volume at their volume-weighted centre (the
-        first one's velocity and draws), fitted into the domain again, until none overlap. Laid
-        apart, two bubbles of one step at one spot (an injector without spread releasing two a
-        step) put both their particles in one ball, and the push cleared room for both around it:
-        gas at twice its density that its J does not know (scene 1979 of the run fuzz: liquid and
-        gas 1.11 of the box by frame 1, 1.09 merged, 0.99 with the open wall's sink too)."""
-        merged = True
-        while merged:
-            merged = False
-            for a in range(len(bubbles)):
-                for c in range(a + 1, len(bubbles)):
-                    p, q = bubbles[a], bubbles[c]
-                    if p["material"] != q["material"] or \
-                            np.linalg.norm(p["centre"] - q["centre"]) >= p["radius"] + q["radius"]:
-                        continue
-                    volume = p["volume"] + q["volume"]
-                    p["centre"] = (p["centre"] * p["volume"] + q["centre"] * q["volume"]) / volume
-                    unit = self._ball_volume(1.0)
-                    p["radius"], p["volume"] = (volume / unit) ** (1.0 / self.dim), volume
-                    self._fitted(p)
-                    del bubbles[c]
-                    merged = True
-                    break
-                if merged:
-                    break
-        return bubbles
 
     def _release(self, ctx, bubbles: list[dict]):
         """Add this step's bubbles, vent those due in the open air, push the fluid out of the others

@@ -108,7 +108,7 @@ def _squeezed_gas(sim, fill: float, both: float, max_fill: float) -> DomainFullE
     and its J does not know. Seen where gas injectors release bubbles into a tank the water fills
     faster than the push that makes their room (effects/room.py, first images only) carries the
     water out through its open walls: the rest is crowded against the closed ones (the run fuzz's
-    air stone in a full tank open at the side: 1.09 of the box by frame 2)."""
+    air stone in a full tank open at the side: 1.07 of the box by frame 1)."""
     scene = sim.scene
     injectors = [f"[emitters.{i}]" for i, e in enumerate(scene.emitters) if isinstance(e, GasInjector)]
     source = " and ".join(injectors) if injectors else "the gas"

@@ -226,3 +226,24 @@ def test_entrained_air_is_booked_so_the_gas_total_holds(tmp_path):
         budget = sim.gas_budget()
         assert budget["total"] == pytest.approx(total0, rel=1e-9, abs=0.0)
     assert budget["entrained"] > 0.2 * total0  # it entrained: the test saw the term at work
+
+
+def test_the_fill_guard_stops_gas_squeezed_in_beside_the_water_by_the_injector(tmp_path, monkeypatch):
+    """A box full of water, open at the side, one bubble of 0.07 of the box: with its room made, the
+    guard passes it; laid on top of the water (the push switched off), water and gas claim 1.07 of
+    the room, which the fill guard (io/fill.py) stops, naming the injector."""
+    from warp_mpm_bubbles.effects import emitters
+    from warp_mpm_bubbles.io.fill import MAX_FILL, DomainFullError, check_domain_fill
+
+    body, walls = water(0.1) + injector((0.05, 0.05), 1000.0, 0.015), 'walls = { x_max = "open" }'
+    (tmp_path / "pushed").mkdir()
+    (tmp_path / "laid").mkdir()
+    sim = simulation(tmp_path / "pushed", body, walls=walls)
+    sim.stage("emitters").begin_step(sim.ctx, 1.5e-3)  # one bubble, its room made
+    assert check_domain_fill(sim) <= 1.0
+    monkeypatch.setattr(emitters, "make_room_for", lambda *args: None)
+    sim = simulation(tmp_path / "laid", body, walls=walls)
+    sim.stage("emitters").begin_step(sim.ctx, 1.5e-3)
+    with pytest.raises(DomainFullError) as err:
+        check_domain_fill(sim)
+    assert MAX_FILL < err.value.fill < 1.1 and "[emitters.0]" in str(err.value) and "gas" in str(err.value)

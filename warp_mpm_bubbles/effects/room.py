@@ -2,7 +2,8 @@
 
 The volume-preserving radial push r' = (r^d + R^d)^(1/d) (effects/subgrid.py's `pushed_from`, which
 the sub-grid gather uses too), by as much as the bubble's ball overlaps, with no cut-off, and from
-the bubble's mirror images across the closed walls. Used by the emitters (effects/emitters.py).
+the bubble's mirror images across the walls (sources across the closed ones, sinks across the open
+ones the liquid drains through). Used by the emitters (effects/emitters.py).
 """
 
 from __future__ import annotations
@@ -32,6 +33,32 @@ def in_open_air(cell: wp.vec3i, top: int, geo: GridGeometry):
 
 
 
+@wp.func
+def pulled_to(xd: wp.vec3d, centre: wp.vec3d, radius_pow: wp.float64, dim: int):
+    """(where xd goes, 1 if the sink takes it in): pushed_from run backwards, a sink of R^d = radius_pow
+    at `centre` pulls a point in along its ray so the volume inside its new distance is the old one's
+    less the sink's, r' = (r^d - R^d)^(1/d); a point within R goes to the centre."""
+    d = xd - centre
+    if dim == 2:
+        d[2] = wp.float64(0.0)
+    r = wp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    rd = r * r
+    if dim == 3:
+        rd = rd * r
+    left = rd - radius_pow
+    out = centre
+    taken = int(1)
+    if left > wp.float64(0.0):
+        scale = wp.sqrt(left) / r
+        if dim == 3:
+            scale = wp.pow(left, wp.float64(1.0) / wp.float64(3.0)) / r
+        out = xd
+        for a in range(dim):
+            out[a] = centre[a] + d[a] * scale
+        taken = 0
+    return out, taken
+
+
 @wp.kernel
 def make_room(
     centres: wp.array(dtype=wp.vec3d), radius_pow: wp.array(dtype=wp.float64), reach: wp.array(dtype=wp.float64),
@@ -52,10 +79,17 @@ def make_room(
     for b in range(n):
         if in_open_air(cells[owner[b]], top[owner[b]], geo):
             continue
-        pushed = pushed_from(xd, centres[b], reach[b], radius_pow[b], dim)
-        if pushed[1] != 0:
-            xd = pushed[0]
+        if radius_pow[b] < wp.float64(0.0):  # a sink: the image across an open wall
+            pulled = pulled_to(xd, centres[b], -radius_pow[b], dim)
+            xd = pulled[0]
             moved = 1
+            if pulled[1] != 0:
+                break  # taken in: out through the open wall, where nothing pushes it back
+        else:
+            pushed = pushed_from(xd, centres[b], reach[b], radius_pow[b], dim)
+            if pushed[1] != 0:
+                xd = pushed[0]
+                moved = 1
     if moved == 0:
         return
     xn = wp.vec3(float(xd[0]), float(xd[1]), float(xd[2]))
@@ -91,20 +125,23 @@ def overlapped_volume(
 
 @wp.kernel
 def push_what_is_there(held: wp.array(dtype=wp.float64), unit: wp.float64, radius_pow: wp.array(dtype=wp.float64),
-                       source: wp.array(dtype=wp.int32), strength: wp.array(dtype=wp.float64)):
+                       source: wp.array(dtype=wp.int32), sign: wp.array(dtype=wp.float64),
+                       strength: wp.array(dtype=wp.float64)):
     """Push i (bubble source[i] or one of its images) pushes aside the volume that bubble's ball
     overlaps (held), not more: strength[i], its R^d, is that volume's (unit: the volume of a ball of
-    radius 1; 2D: a disk through the slab), at most the bubble's own radius_pow."""
+    radius 1; 2D: a disk through the slab), at most the bubble's own radius_pow; negative (sign -1)
+    for a sink, an image across an open wall."""
     i = wp.tid()
     b = source[i]
-    strength[i] = wp.min(radius_pow[b], held[b] / unit)
+    strength[i] = sign[i] * wp.min(radius_pow[b], held[b] / unit)
 
 
 def make_room_for(ctx, pushes: list[tuple], first_new: int, cells, top):
     """The fluid makes room for this step's new bubbles (pushes: (centre, R^d, site) each) by
     make_room's radial push, with an unbounded reach, each bubble's R^d cut to the volume of the
     fluid its ball overlaps (overlapped_volume, before any push; no read), the bubble pushing
-    along with its mirror images across the closed walls (mirror_images).
+    along with its mirror images across the walls (mirror_images): sources across the closed ones,
+    sinks across the open ones, which carry what the bubble displaces out through them.
 
     Unbounded: the push keeps the volume of what it moves, but cut off at a reach (it was 4 R)
     it moves the fluid inside onto the fluid outside, which stays: the bubble's whole volume
@@ -123,26 +160,43 @@ def make_room_for(ctx, pushes: list[tuple], first_new: int, cells, top):
     ctx.launch(overlapped_volume, first_new, [dev(centres.astype(np.float64), wp.vec3d),
                                               dev(radius_pow.astype(np.float64), wp.float64), len(pushes),
                                               first_new, dim, p.phase, p.active, p.x, p.vol0, p.J, held])
-    images = [(c, k) for k, centre in enumerate(centres) for c in mirror_images(ctx, centre)]
-    source = np.array([k for _, k in images], np.int32)
+    # Each bubble's sinks first, so its own push, after them, clears its ball: pulled after it, the
+    # liquid between the ball and a sink came back into the ball (scene 1045, reduced: liquid and
+    # gas 1.06 of the box after the first bubble, 1.00 with the sinks first). The sources keep their
+    # order (the bubble, then its images), so a domain without open walls pushes as before.
+    images = [(c, k, sign) for k, centre in enumerate(centres)
+              for c, sign in sorted(mirror_images(ctx, centre), key=lambda image: image[1])]
+    source = np.array([k for _, k, _ in images], np.int32)
     strength = wp.zeros(len(images), dtype=wp.float64, device=ctx.device)
     unit = 4.0 / 3.0 * math.pi if dim == 3 else math.pi * ctx.grid.dx
     ctx.launch(push_what_is_there, len(images),
-               [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64), dev(source, wp.int32), strength])
-    ctx.launch(make_room, first_new, [dev(np.array([c for c, _ in images], np.float64), wp.vec3d), strength,
+               [held, wp.float64(unit), dev(radius_pow.astype(np.float64), wp.float64), dev(source, wp.int32),
+                dev(np.array([sign for _, _, sign in images], np.float64), wp.float64), strength])
+    ctx.launch(make_room, first_new, [dev(np.array([c for c, _, _ in images], np.float64), wp.vec3d), strength,
                                       dev(np.full(len(images), np.inf), wp.float64),
                                       dev(site[source].astype(np.int32), wp.int32), cells, top, len(images),
                                       first_new, ctx.geometry, p.phase, p.active, p.x])
     ctx.book_outflow()  # what the push carried through an open wall
 
 
-def mirror_images(ctx, centre) -> list[np.ndarray]:
-    """centre and its mirror images across the closed walls: on each axis none, the low wall or
-    the high wall (where closed), every combination (across a corner: a wall's image mirrored
-    across the other)."""
+def mirror_images(ctx, centre) -> list[tuple[np.ndarray, float]]:
+    """(centre, 1) and its mirror images across the walls, each with its sign: on each axis none,
+    the low wall or the high wall, every combination (across a corner: a wall's image mirrored
+    across the other), the sign the product of the walls': +1 across a closed wall (a source: the
+    wall's normal flow cancels), -1 across an open one the liquid drains through (a sink: the wall's
+    pressure, the atmosphere's, stays; the flow crosses it). Without the sinks a bubble in a tank the
+    water fills pushed out through its open wall only what crossed it, and crowded the rest against
+    the closed walls (scenes 1045 and 1979 of the run fuzz: liquid and gas 1.10-1.35 of the box).
+    No image across the open top (the atmosphere above the water's surface, which is no wall)."""
     g, size = ctx.geometry, ctx.grid.domain_size
-    choices = [[centre[a]] for a in range(3)]
+    up, up_sign = ctx.up
+    choices = [[(centre[a], 1.0)] for a in range(3)]
     for a in range(ctx.grid.dim):
-        choices[a] += [-centre[a]] if not g.open_lo[a] else []
-        choices[a] += [2.0 * size[a] - centre[a]] if not g.open_hi[a] else []
-    return [np.array([x, y, z]) for x in choices[0] for y in choices[1] for z in choices[2]]
+        for side, wall, at in ((0, g.open_lo[a], -centre[a]), (1, g.open_hi[a], 2.0 * size[a] - centre[a])):
+            top = a == up and (side == 1) == (up_sign > 0)
+            if not wall:
+                choices[a].append((at, 1.0))
+            elif not top:
+                choices[a].append((at, -1.0))
+    return [(np.array([x, y, z]), sx * sy * sz)
+            for x, sx in choices[0] for y, sy in choices[1] for z, sz in choices[2]]

@@ -39,12 +39,17 @@ MAX_INJECTED_GAUGE = 1.0
 LATTICE_POINTS = 2**20  # 25 MB of float64 points in 3D; a 1024 x 1024 grid of cells is measured exactly
 
 
-def _lattice(domain):
-    """Points at the centres of a regular lattice over the domain, and the volume each stands for."""
-    size = np.asarray(domain.size, float)
-    n = np.array([round(s / domain.cell_size) for s in size])  # the scene's cells, refine aside
+def _lattice_counts(domain) -> np.ndarray:
+    """The lattice's points along each axis: the scene's cells (refine aside), fewer past LATTICE_POINTS."""
+    n = np.array([round(s / domain.cell_size) for s in domain.size])
     if n.prod() > LATTICE_POINTS:
         n = np.maximum(1, np.floor(n * (LATTICE_POINTS / n.prod()) ** (1.0 / len(n)))).astype(int)
+    return n
+
+
+def _lattice(domain):
+    """Points at the centres of a regular lattice over the domain, and the volume each stands for."""
+    size, n = np.asarray(domain.size, float), _lattice_counts(domain)
     axes = [(np.arange(k) + 0.5) * s / k for k, s in zip(n, size)]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(n))
     return points, float(np.prod(size / n))
@@ -126,9 +131,50 @@ def draining_walls(domain) -> list[str]:
     return [k for k, v in walls.items() if v == "open" and k != top_wall(domain)]
 
 
+def _lidded(scene, points, solid, owner) -> bool:
+    """Whether the shapes and colliders cover the layer of lattice points under the top (without
+    gravity: every layer along the walls) in a domain with no open wall: no open air where the gas
+    could vent (core/voids.py: the open air starts in the top layer), so the gas stays."""
+    walls = scene.domain.walls
+    if any(w == "open" for w in (walls.values() if isinstance(walls, dict) else [walls])):
+        return False
+    size = np.asarray(scene.domain.size, float)
+    step = size / _lattice_counts(scene.domain)
+    top = top_wall(scene.domain)
+    edges = [top] if top else [f"{a}_{side}" for a in "xyz"[: scene.dim] for side in ("min", "max")]
+    covered = (owner >= 0) | solid
+    for wall in edges:
+        a = "xyz".index(wall[0])
+        layer = points[:, a] < step[a] if wall.endswith("min") else points[:, a] > size[a] - step[a]
+        if not covered[layer].all():
+            return False
+    return True
+
+
+def _staying_gas(scene) -> tuple[float, float, str]:
+    """(volume, least volume, why) of the gas the shapes seed in a closed domain they lid (_lidded):
+    no open air to vent to, so as the liquid rises it takes the gas's room only by compressing it:
+    not at all where a gas is incompressible, else by Boyle's law up to MAX_INJECTED_GAUGE (or the
+    gas shapes' bound, where lower), as check_injection. (0, 0, "") where the gas may vent."""
+    points, cell, solid, owner = _lattice_owners(scene)
+    gas_volume, gas_rest = _seeded_gas(scene)
+    if gas_volume <= 0.0 or not _lidded(scene, points, solid, owner):
+        return 0.0, 0.0, ""
+    mats = [m for m in scene.materials.values() if m.is_gas]
+    if any(m.eos == "incompressible" for m in mats):
+        return gas_volume, gas_volume, "incompressible (eos)"
+    gamma = max(m.gamma if m.eos == "adiabatic" else 1.0 for m in mats)
+    p_atm = scene.domain.ambient_pressure
+    max_gauge = min(float(max_gauge_pressure(scene.materials)), MAX_INJECTED_GAUGE * p_atm)
+    least = gas_rest * (p_atm / (p_atm + max_gauge)) ** (1.0 / gamma)
+    return gas_volume, least, f"compressed at most to {_g(max_gauge)} Pa gauge (Boyle's law)"
+
+
 def check_pour(scene):
     """Refuse a domain the liquid cannot leave (no open wall but the top) whose liquid emitters
-    bring more liquid than it has room for."""
+    bring more liquid than it has room for: beside the liquid the shapes seed and, where the shapes
+    lid a domain with no open wall (_lidded), beside the gas they seed, which has no open air to
+    vent to and gives the liquid no more room than compressing it can (_staying_gas)."""
     pours = [(i, e) for i, e in enumerate(scene.emitters) if hasattr(e, "volume_rate")]
     if not pours or draining_walls(scene.domain):
         return  # the liquid leaves through an open wall: what stays is not predictable here
@@ -137,6 +183,9 @@ def check_pour(scene):
     poured = {i: poured_volume(e, t_end) for i, e in pours}
     total = seeded + sum(poured.values())
     if total <= room * (1.0 + 1e-9):
+        gas, least, how = _staying_gas(scene)
+        if total + least > room * (1.0 + 1e-9):
+            _refuse_pour_into_gas(scene, poured, room, seeded, gas, least, how)
         return
     key_i = max(poured, key=poured.get)  # the emitter that brings the most
     e = scene.emitters[key_i]
@@ -158,6 +207,27 @@ def check_pour(scene):
            f"{{ {_example_wall(scene.domain)} = \"open\" }}), {key}.{stop_fix}, "
            + (f"[output].frames <= {frames}, " if frames >= 1 else "")
            + f"or a lower {key}.speed or radius")
+    raise SceneError(msg, key, poured[key_i], f"at most {max(spare, 0.0):.4g} {unit}")
+
+
+def _refuse_pour_into_gas(scene, poured: dict, room: float, seeded: float, gas: float, least: float, how: str):
+    """check_pour's refusal where the liquid fits the room but not beside the gas that stays."""
+    key_i = max(poured, key=poured.get)
+    e, unit = scene.emitters[key_i], "m^2" if scene.dim == 2 else "m^3"
+    others = sum(poured.values()) - poured[key_i]
+    spare = room - seeded - least - others
+    key = f"[emitters.{key_i}]"
+    stop_fix = (f"{key}.stop <= {_down(e.start + spare / e.volume_rate)} s" if spare > 0.0
+                else f"remove {key}")
+    msg = (f"{scene.source}: {key}: pours {poured[key_i]:.4g} {unit} of liquid over the run"
+           + (f" (other emitters {others:.4g} {unit})" if others else "")
+           + f" into a domain with no open wall whose shapes cover its top, so the {gas:.4g} {unit} of gas they "
+           f"seed has no open air to vent to and stays; {how}, it still takes {least:.4g} {unit}. With the "
+           f"{seeded:.4g} {unit} of liquid the shapes seed that is {seeded + sum(poured.values()) + least:.4g} "
+           f"{unit}, but the domain holds {room:.4g} {unit}" + (" per metre of the 2D slab" if scene.dim == 2 else "")
+           + f". Fixes: an open wall the liquid can leave through ([domain].walls = "
+           f"{{ {_example_wall(scene.domain)} = \"open\" }}), less gas (leave open air under the top), "
+           f"{stop_fix}, or a lower {key}.speed or radius")
     raise SceneError(msg, key, poured[key_i], f"at most {max(spare, 0.0):.4g} {unit}")
 
 

@@ -253,6 +253,24 @@ def _void_search(types, ghost, up, dim, region=None):
     return (np.zeros((0, 3), int), np.zeros(0, int)) if found is None else found[1:]
 
 
+def _random_cell_types(rng, dim, sizes, empty_share, open_walls=None):
+    """A random field of EMPTY and FLUID cells, (low, high) cells a side and an EMPTY share drawn from
+    `empty_share`, in a layer of wall cells: SOLID_NO_SLIP, or EMPTY (open) at a share `open_walls`."""
+    from warp_mpm_bubbles.core.grid import SOLID_NO_SLIP
+
+    n = rng.integers(*sizes, 3)
+    shape = (n[0] + 2, n[1] + 2, 1 if dim == 2 else n[2] + 2)
+    ghost = (1, 1, 1 if dim == 3 else 0)
+    types = np.where(rng.random(shape) < rng.uniform(*empty_share), EMPTY, FLUID).astype(np.int32)
+    wall = np.ones(shape, bool)
+    wall[tuple(slice(g, s - g) for g, s in zip(ghost, shape))] = False
+    if open_walls is None:
+        types[wall] = SOLID_NO_SLIP
+    else:
+        types[wall] = np.where(rng.random(wall.sum()) < open_walls, EMPTY, SOLID_NO_SLIP)
+    return shape, ghost, types
+
+
 def test_the_void_search_finds_exactly_the_voids_of_the_rule():
     """The device sweeps and the host's search of what they leave give grid.closed_empty_cells' cells
     and regions (the rule, which labels every EMPTY cell) on random cell types, 2D and 3D, with gravity
@@ -263,13 +281,7 @@ def test_the_void_search_finds_exactly_the_voids_of_the_rule():
     searched = 0
     for trial in range(80):
         dim = 2 + trial % 2
-        n = rng.integers(4, 12, 3)
-        shape = (n[0] + 2, n[1] + 2, 1 if dim == 2 else n[2] + 2)
-        ghost = (1, 1, 1 if dim == 3 else 0)
-        types = np.where(rng.random(shape) < rng.uniform(0.2, 0.8), EMPTY, FLUID).astype(np.int32)
-        wall = np.ones(shape, bool)
-        wall[tuple(slice(g, s - g) for g, s in zip(ghost, shape))] = False
-        types[wall] = np.where(rng.random(wall.sum()) < 0.1, EMPTY, SOLID_NO_SLIP)  # a few open wall cells
+        shape, ghost, types = _random_cell_types(rng, dim, (4, 12), (0.2, 0.8), open_walls=0.1)
         up = (int(rng.integers(-1, dim)), int(rng.choice([-1, 1])))
         cells, labels = _void_search(types, ghost, up, dim)
         ref_cells, ref_labels = closed_empty_cells(types, ghost, up)
@@ -297,7 +309,6 @@ def test_the_sweeps_in_slabs_mark_what_one_launch_marks():
     every box, run one after the other) mark the same open air as one launch: random cell types, 2D
     and 3D, gravity along each axis. The marks are compared before the host's search, which would
     cover for cells a wrong slab left unmarked."""
-    from warp_mpm_bubbles.core.grid import SOLID_NO_SLIP
     from warp_mpm_bubbles.core.voids import VoidSearch
 
     rng = np.random.default_rng(11)
@@ -305,13 +316,7 @@ def test_the_sweeps_in_slabs_mark_what_one_launch_marks():
     marked = 0
     for trial in range(24):
         dim = 2 + trial % 2
-        n = rng.integers(5, 14, 3)
-        shape = (n[0] + 2, n[1] + 2, 1 if dim == 2 else n[2] + 2)
-        ghost = (1, 1, 1 if dim == 3 else 0)
-        types = np.where(rng.random(shape) < rng.uniform(0.3, 0.8), EMPTY, FLUID).astype(np.int32)
-        wall = np.ones(shape, bool)
-        wall[tuple(slice(g, s - g) for g, s in zip(ghost, shape))] = False
-        types[wall] = SOLID_NO_SLIP
+        shape, ghost, types = _random_cell_types(rng, dim, (5, 14), (0.3, 0.8))
         up = (int(rng.integers(0, dim)), int(rng.choice([-1, 1])))
         marks = []
         for threads in (1, 2, 3):

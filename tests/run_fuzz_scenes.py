@@ -494,4 +494,33 @@ HARD_SCENES = {
         '[materials.air]\nkind = "gas"\n' + _WATER_BOX.format(w=0.24, h=0.28)
         + '[[emitters]]\ntype = "gas_injector"\nmaterial = "air"\ncenter = [0.05, 0.03]\nrate = 170.0\nradius = 0.075\n'
         + _OUTPUT.format(fps=120.0, frames=3), (0, 1)),
+    # A stream through the open top of a full box open at a side too (scene 1403, 1.5 m/s, its nozzle
+    # in the top cell): its layers were laid into cells already full up to 1.2 of a cell (the
+    # emitters' CROWDED_FILL), so the box held 1.023 of its volume in liquid, silently (exit 0).
+    # Laying only into cells not yet full: 1.011 (at 2 m/s still 1.021: see test_run_fuzz.py).
+    "stream_into_a_full_box_open_at_top_and_side": (
+        '[domain]\nsize = [0.03, 0.04, 0.035]\ncell_size = 0.005\nwalls = {{ y_max = "open", z_max = "open" }}\n'
+        '[materials.water]\nviscosity = 1.0\n'
+        '[[shapes]]\ntype = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.03, 0.04, 0.035]\n'
+        '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.0096, 0.0398, 0.0257]\n'
+        'direction = [0.0, -1.0, 0.0]\nradius = 0.0086\nspeed = 1.5\n' + _OUTPUT.format(fps=120.0, frames=2), (0,)),
+    # The same inside a full tank open at one side, holding a bubble (scene 935): liquid 0.925 and gas
+    # 0.096 of the box at frame 1 (1.021), silently (exit 0); laying only into cells not yet full: 1.015.
+    "stream_into_a_full_tank_with_a_bubble": (
+        '[domain]\nsize = [0.2, 0.16]\ncell_size = 0.02\nwalls = {{ x_min = "open", x_max = "free_slip", '
+        'y_min = "no_slip", y_max = "no_slip" }}\n[materials.water]\n[materials.air]\nkind = "gas"\neos = "adiabatic"\n'
+        + _WATER_BOX.format(w=0.2, h=0.16)
+        + '[[shapes]]\ntype = "sphere"\nmaterial = "air"\ncenter = [0.152331497, 0.033100909]\nradius = 0.030686014\n'
+          '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.038048164, 0.140637365]\n'
+          'direction = [0.753499895, -0.212589405]\nradius = 0.020118501\nspeed = 1.386046712\n'
+          '[solver]\nseed = 889\n' + _OUTPUT.format(fps=60.0, frames=1), (0,)),
+    # A stream fired at a closed corner from a cell and a half away (scene 435, preview quality): its
+    # layers were laid into the cells the stream had already crowded against the walls, and the liquid
+    # occupied 0.853 of its rest volume after a frame, silently (exit 0); laying only into cells not
+    # yet full: 0.911.
+    "stream_aimed_at_a_closed_corner": (
+        '[domain]\nsize = [0.06, 0.07]\ncell_size = 0.005\n[materials.water]\n'
+        + _WATER_BOX.format(w=0.01, h=0.01)
+        + '[[emitters]]\ntype = "liquid_inflow"\nmaterial = "water"\ncenter = [0.05, 0.064]\ndirection = [0.3, 0.42]\n'
+          'radius = 0.0093\nspeed = 1.22\n[solver]\nquality = "preview"\n' + _OUTPUT.format(fps=30.0, frames=1), (0,)),
 }

@@ -359,9 +359,8 @@ class EmitterStage(Stage):
         box, a third of it past the floor and a wall; liquid and gas then filled 1.13 of the box,
         1.11 with the ball inside, 1.00 with the open floor's sink too: effects/room.py)."""
         size = self.size
-        if "volume" not in b or b["radius"] > 0.5 * size.min():
-            b["radius"] = min(b["radius"], 0.5 * size.min())
-            b["volume"] = self._ball_volume(b["radius"])
+        b["radius"] = min(b["radius"], 0.5 * size.min())
+        b["volume"] = self._ball_volume(b["radius"])
         b["centre"][: self.dim] = np.clip(b["centre"][: self.dim], b["radius"], size - b["radius"])
         return b
 

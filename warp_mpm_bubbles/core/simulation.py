@@ -584,3 +584,7 @@ class Simulation:
     def liquid_volume(self) -> float:
         """Volume the particles fill, m^3 (readout.liquid_volume)."""
         return readout.liquid_volume(self)
+
+    def liquid_density(self) -> float:
+        """The liquid's mean rest-volume fraction inside it, 1 at rest (readout.liquid_density)."""
+        return readout.liquid_density(self)

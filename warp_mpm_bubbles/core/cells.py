@@ -9,7 +9,7 @@ from typing import Any
 
 import warp as wp
 
-from .grid import FLUID, PHASE_LIQUID, SOLID_FREE_SLIP
+from .grid import EMPTY, FLUID, PHASE_LIQUID, SOLID_FREE_SLIP
 
 HOLE_FRACTION = wp.constant(0.25)  # a particle-free cell filled past this by its neighbours' splats is no free surface
 
@@ -124,3 +124,26 @@ def cell_of(x: wp.vec3, origin: wp.vec3, dx: float):
 def cell_centre(c: wp.vec3i, origin: wp.vec3, dx: float):
     """The world position of cell c's centre (the inverse of cell_of)."""
     return origin + dx * wp.vec3(float(c[0]) + 0.5, float(c[1]) + 0.5, float(c[2]) + 0.5)
+
+
+@wp.func
+def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
+                    gas_kv: wp.array3d(dtype=float), c: wp.vec3i, dim: int, two_phase: int):
+    """(pinned, enclosed) of fluid cell c: pinned = 1 if a face neighbour is empty (Dirichlet p = 0);
+    enclosed = 1 if every face neighbour is liquid or incompressible gas (gas_kv = 0): no surface,
+    wall or compressible gas nearby to lower its rest-volume fraction legitimately (compressible gas
+    expands into a gap by itself; an incompressible one cannot, like the liquid)."""
+    pinned = int(0)
+    enclosed = int(1)
+    for a in range(dim):
+        for s in range(2):
+            n = c + (2 * s - 1) * unit(a)
+            t = cell_type_at(types, n)
+            if t == EMPTY:
+                pinned = 1
+            if t != FLUID:
+                enclosed = 0
+            elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
+                if gas_kv[n[0], n[1], n[2]] > 0.0:
+                    enclosed = 0
+    return wp.vec2i(pinned, enclosed)

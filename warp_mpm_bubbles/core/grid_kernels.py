@@ -13,10 +13,11 @@ from .grid import (
     EMPTY, FLUID, INTERFACE_BASELINE, PHASE_GAS, PHASE_LIQUID, SOLID_FREE_SLIP, SOLID_NO_SLIP, WALL_NO_SLIP, WALL_OPEN,
 )
 from .gas_law import cell_compressibility
-from .cells import HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trusted, fill_fraction, is_solid, unit
+from .cells import (HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trusted, fill_fraction, is_solid,
+                    neighbour_kinds, unit)
 from .kernel_args import CellPhases, FaceField, PressureRows, Splat, StepParams
 from .lines import line_kernel
-from .volume_correction import cell_excess, is_hole
+from .volume_correction import VOLUME_FILL_SMOOTHED, cell_excess, is_hole, smoothed_excess
 
 wp.set_module_options({"enable_backward": False})
 
@@ -252,29 +253,6 @@ zero_solid_faces = line_kernel(zero_solid_faces_at)
 
 
 @wp.func
-def neighbour_kinds(types: wp.array3d(dtype=wp.int32), phase: wp.array3d(dtype=wp.int32),
-                    gas_kv: wp.array3d(dtype=float), c: wp.vec3i, dim: int, two_phase: int):
-    """(pinned, enclosed) of fluid cell c: pinned = 1 if a face neighbour is empty (Dirichlet p = 0);
-    enclosed = 1 if every face neighbour is liquid or incompressible gas (gas_kv = 0): no surface,
-    wall or compressible gas nearby to lower its rest-volume fraction legitimately (compressible gas
-    expands into a gap by itself; an incompressible one cannot, like the liquid)."""
-    pinned = int(0)
-    enclosed = int(1)
-    for a in range(dim):
-        for s in range(2):
-            n = c + (2 * s - 1) * unit(a)
-            t = cell_type_at(types, n)
-            if t == EMPTY:
-                pinned = 1
-            if t != FLUID:
-                enclosed = 0
-            elif two_phase != 0 and phase[n[0], n[1], n[2]] != PHASE_LIQUID:
-                if gas_kv[n[0], n[1], n[2]] > 0.0:
-                    enclosed = 0
-    return wp.vec2i(pinned, enclosed)
-
-
-@wp.func
 def pressure_diagonal_and_rhs_at(
     step: StepParams,
     volume_rate: float,
@@ -339,8 +317,12 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        target = volume_rate * cell_excess(liq_volume, gas_volume, gas_kv, two_phase, wp.vec3i(i, j, k), enclosed,
-                                           inv_dx2, dx)  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
+        c = wp.vec3i(i, j, k)
+        if step.volume_fill == VOLUME_FILL_SMOOTHED:
+            excess = smoothed_excess(cells, splat, two_phase, c, dim, enclosed, inv_dx2, dx)
+        else:
+            excess = cell_excess(liq_volume, gas_volume, gas_kv, two_phase, c, enclosed, inv_dx2, dx)
+        target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
             rows.target_div[i, j, k] = target

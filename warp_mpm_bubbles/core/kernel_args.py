@@ -56,6 +56,7 @@ class StepParams:
     inv_cell_vol: float  # 1 / dx^3
     two_phase: int  # 1 with gas in the scene (its arrays are real), else 0
     interface: int  # INTERFACE_SHARP or INTERFACE_BASELINE (grid.py)
+    volume_fill: int  # the volume correction's fill: 0 each cell's own, VOLUME_FILL_SMOOTHED (volume_correction.py)
 
 
 @wp.struct
@@ -92,12 +93,12 @@ def splat(fields) -> Splat:
     return s
 
 
-def step_params(grid, dt: float, two_phase: int, interface: int) -> StepParams:
+def step_params(grid, dt: float, two_phase: int, interface: int, volume_fill: int = 0) -> StepParams:
     """The step's numbers for a MacGrid."""
     s = StepParams()
     s.dt, s.dx, s.dim = dt, grid.dx, grid.dim
     s.inv_cell_vol = 1.0 / grid.dx**3
-    s.two_phase, s.interface = two_phase, interface
+    s.two_phase, s.interface, s.volume_fill = two_phase, interface, volume_fill
     return s
 
 

@@ -73,6 +73,28 @@ def mass_budget(sim) -> dict[str, dict[str, float]]:
             "gas": gas_budget(sim)}
 
 
+def liquid_density(sim) -> float:
+    """The liquid's mean rest-volume fraction in its interior, 1 at rest density: over the cells
+    whose whole 3^dim block is inside the domain and more than half full of liquid (a surface's
+    partly filled cells left out), the mean of phi. Above 1 the liquid is compressed by that share.
+
+    Unlike liquid_volume, the particles' sampling noise does not bias it: phi scatters about 7% from
+    cell to cell at 4 particles a cell, and min(phi, 1) reads that scatter as lost volume (a
+    shuffle of the particles that keeps every volume reads as a loss there), while the scatter's
+    mean is 0. Re-splats the current particles.
+    """
+    sim.particles_to_grid()
+    phi = sim.fields.liq_volume.numpy()[sim.grid.interior_slice()] / sim.grid.dx ** 3
+    full = np.pad(phi > 0.5, 1)  # the ghost ring and beyond count as not full
+    inner = np.ones_like(phi, dtype=bool)
+    offsets = (-1, 0, 1)
+    for a in offsets:
+        for b in offsets:
+            for c in (offsets if sim.grid.dim == 3 else (0,)):
+                inner &= full[1 + a:1 + a + phi.shape[0], 1 + b:1 + b + phi.shape[1], 1 + c:1 + c + phi.shape[2]]
+    return float(phi[inner].mean()) if inner.any() else float("nan")
+
+
 def pressure_numpy(sim) -> np.ndarray:
     """Gauge pressure (Pa) on interior cells from the last step; non-fluid cells read 0."""
     return sim.fields.pressure.numpy()[sim.grid.interior_slice()]

@@ -38,6 +38,7 @@ from .geometry import grid_geometry
 from .host_reads import HostReads
 from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
+from .volume_correction import VOLUME_FILLS
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .seeding import seed_particles
 from .context import StepContext
@@ -166,6 +167,7 @@ class Simulation:
         self.up = (up_axis, 1 if up_axis < 0 or self.gravity[up_axis] < 0.0 else -1)
         self.geometry = grid_geometry(g, self.gravity, self.up, open_lo, open_hi)  # what the particle kernels take
         self.interface = INTERFACES.index(scene.solver.interface)
+        self.volume_fill = VOLUME_FILLS.index(scene.solver.volume_fill)
         self.two_phase = int(self.has_gas)
 
     def _seed(self):
@@ -386,7 +388,7 @@ class Simulation:
 
     def _phase_classify(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
-        step = step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
         self.launch_lines(gk.classify_cells, r.cell_lines, [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo,
                                                             self.wall_hi, f.cell_count, splat(f), f.types])
 
@@ -395,7 +397,7 @@ class Simulation:
 
     def _phase_face_density(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
-        step = step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
         for a in g.axes:
             self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [a, f.types, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
@@ -404,7 +406,7 @@ class Simulation:
     def _phase_assemble(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        step = step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
         rate = volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt)
         fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
@@ -438,7 +440,7 @@ class Simulation:
         if apart:
             self.sealed.center(self, f)
         self.stats.record(info)
-        step = step_params(g, dt, self.two_phase, self.interface)
+        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
                               [step, a, f.types, f.pressure, f.inv_rho[a], f.vel[a], f.valid[a]])
@@ -582,3 +584,7 @@ class Simulation:
     def liquid_volume(self) -> float:
         """Volume the particles fill, m^3 (readout.liquid_volume)."""
         return readout.liquid_volume(self)
+
+    def liquid_density(self) -> float:
+        """The liquid's mean rest-volume fraction inside it, 1 at rest (readout.liquid_density)."""
+        return readout.liquid_density(self)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from .checks import _Checker, _g
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from ..core.grid import INTERFACES, PRECONDITIONERS
+from ..core.volume_correction import VOLUME_FILLS
 from .limits import (
     DEFAULT_VOLUME_RELAXATION, MAX_CG_ITERATIONS, MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_VOLUME_CORRECTION_SPEED,
     MAX_VOLUME_RELAXATION, MIN_VOLUME_CORRECTION_SPEED, MIN_VOLUME_RELAXATION,
@@ -45,6 +46,10 @@ class SolverSettings:
         volume_relaxation_time: s (0.001..1000, default 0.01): a cell's over-fill (or, enclosed in
             liquid, under-fill) beyond the seeding noise is undone at excess / this per second, but
             never more than all of it in one step; 0 turns the correction off.
+        volume_fill: "cell" (default) | "smoothed": the fill the correction reads. "cell": each
+            cell's own, its excess past a noise band of 0.1. "smoothed": a weighted mean over the
+            cell's neighbours, its whole excess; a rising bubble's speed then jitters about a tenth
+            as much, and the water compresses a little more (docs/design.md, #volume-correction).
         volume_correction_speed: m/s (0.01..10; None, the default: the fixed time above): makes the
             relaxation time the simulated cell over it, so the volume drift converges with the grid,
             at the price of correction speeds that do not (docs/design.md, #volume-correction).
@@ -68,6 +73,7 @@ class SolverSettings:
     gas_films: str = "retract"  # sharp interface with tension: sub-cell gas beside a bubble retracts into it
     volume_relaxation_time: float | None = None  # s: excess undone at excess / this per second; None: 0.01 or the speed's
     volume_correction_speed: float | None = None  # m/s: tau = cell / this; None: the fixed time
+    volume_fill: str = "cell"  # the fill the correction reads: each cell's own, or "smoothed" over its neighbours
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
     volume_correction: float | None = None  # removed: refused with the conversion (see _validate)
@@ -94,6 +100,7 @@ class SolverSettings:
         if self.volume_correction is not None:
             c.fail(f"{t}.volume_correction", self.volume_correction, _VOLUME_CORRECTION_REMOVED)
         self._validate_volume_relaxation(c, t)
+        self.volume_fill = c.choice(f"{t}.volume_fill", self.volume_fill, VOLUME_FILLS)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, le=2**63 - 1, whole=True)
         self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
                                             le=MAX_STEPS_LIMIT, whole=True)

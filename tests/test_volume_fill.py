@@ -147,3 +147,12 @@ def test_the_smoothed_fill_keeps_the_dam_break_uncompressed(tmp_path):
     compression = sim.liquid_density() / density0 - 1.0
     print(f"dam break, smoothed fill: compression {compression:+.4f}")
     assert abs(compression) < 0.01
+
+
+def test_the_run_summary_names_the_fill():
+    # The summary's settings line (io/runner.py) says which fill the correction read, beside its time.
+    from warp_mpm_bubbles.io.runner import _relaxation
+
+    for fill in ("cell", "smoothed"):
+        solver = SolverSettings(volume_relaxation_time=0.01, volume_fill=fill)
+        assert _relaxation(solver, 0.01) == f"10 ms (fixed, {fill} fill)"

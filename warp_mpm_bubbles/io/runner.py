@@ -252,7 +252,7 @@ def _relaxation(solver, dx: float) -> str:
     if tau == 0:
         return "off"
     source = "fixed" if solver.volume_correction_speed is None else f"cell / {solver.volume_correction_speed:g} m/s"
-    return f"{1e3 * tau:.3g} ms ({source})"
+    return f"{1e3 * tau:.3g} ms ({source}, {solver.volume_fill} fill)"
 
 
 def summary(result: RunResult) -> str:

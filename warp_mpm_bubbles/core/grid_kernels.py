@@ -321,7 +321,7 @@ def pressure_diagonal_and_rhs_at(
         if step.volume_fill == VOLUME_FILL_SMOOTHED:
             excess = smoothed_excess(cells, splat, two_phase, c, dim, enclosed, inv_dx2, dx)
         else:
-            excess = cell_excess(liq_volume, gas_volume, gas_kv, two_phase, c, enclosed, inv_dx2, dx)
+            excess = cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
         target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
         b += target / dt
         if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take

@@ -55,33 +55,36 @@ def is_hole(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=fl
 
 
 @wp.func
-def cell_excess(liq_volume: wp.array3d(dtype=float), gas_volume: wp.array3d(dtype=float),
-                gas_kv: wp.array3d(dtype=float), two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float,
-                dx: float):
-    """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
-    gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its total
-    fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the correction
-    governs only then). The gas's own over-fill alone spread a bubble well past its particles'
-    volume (nothing closed its under-filled cells); the liquid's alone crushed it to a fraction of it. Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
-    held = liq_volume[c[0], c[1], c[2]]
-    gas_here = float(0.0)
-    if two_phase != 0:
-        gas_here = gas_volume[c[0], c[1], c[2]]
-        if gas_kv[c[0], c[1], c[2]] == 0.0:
-            held = held + gas_here
-            gas_here = 0.0
-    return volume_excess(held, gas_here, enclosed, inv_dx2, dx, VOLUME_NOISE_BAND)
-
-
-@wp.func
 def held_volume(splat: Splat, two_phase: int, c: wp.vec3i):
     """The volume that fills cell c as one incompressible medium: its liquid, and its gas where the
-    gas is incompressible (gas_kv = 0); cell_excess's `held`."""
+    gas is incompressible (gas_kv = 0)."""
     held = splat.liq_volume[c[0], c[1], c[2]]
     if two_phase != 0:
         if splat.gas_kv[c[0], c[1], c[2]] == 0.0:
             held = held + splat.gas_volume[c[0], c[1], c[2]]
     return held
+
+
+@wp.func
+def compressible_gas_volume(splat: Splat, two_phase: int, c: wp.vec3i):
+    """Cell c's gas where it is compressible (gas_kv > 0), which held_volume leaves out: it counts
+    only against the cell's under-fill (volume_excess)."""
+    if two_phase != 0:
+        if splat.gas_kv[c[0], c[1], c[2]] > 0.0:
+            return splat.gas_volume[c[0], c[1], c[2]]
+    return 0.0
+
+
+@wp.func
+def cell_excess(splat: Splat, two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float, dx: float):
+    """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
+    gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its
+    total fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the
+    correction governs only then). The gas's own over-fill alone spread a bubble well past its
+    particles' volume (nothing closed its under-filled cells); the liquid's alone crushed it to a
+    fraction of it. Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
+    return volume_excess(held_volume(splat, two_phase, c), compressible_gas_volume(splat, two_phase, c), enclosed,
+                         inv_dx2, dx, VOLUME_NOISE_BAND)
 
 
 @wp.func
@@ -105,7 +108,7 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
     resting tank rose, a head's floor pressure read 5% high); and a stream piling into a corner
     needs its own cell's over-fill undone, not a sixteenth of it."""
     if enclosed == 0:
-        return cell_excess(splat.liq_volume, splat.gas_volume, splat.gas_kv, two_phase, c, enclosed, inv_dx2, dx)
+        return cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
     types = cells.types
     cell_volume = dx * dx * dx
     kz = int(0)
@@ -125,8 +128,4 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
                         held = cell_volume
                     total += w * held
                     weight += w
-    gas_here = float(0.0)  # compressible gas: under-fill counts it as filling (volume_excess)
-    if two_phase != 0:
-        if splat.gas_kv[c[0], c[1], c[2]] > 0.0:
-            gas_here = splat.gas_volume[c[0], c[1], c[2]]
-    return volume_excess(total / weight, gas_here, enclosed, inv_dx2, dx, 0.0)
+    return volume_excess(total / weight, compressible_gas_volume(splat, two_phase, c), enclosed, inv_dx2, dx, 0.0)

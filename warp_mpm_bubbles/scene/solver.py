@@ -48,8 +48,9 @@ class SolverSettings:
             never more than all of it in one step; 0 turns the correction off.
         volume_fill: "cell" (default) | "smoothed": the fill the correction reads. "cell": each
             cell's own, its excess past a noise band of 0.1. "smoothed": a weighted mean over the
-            cell's neighbours, its whole excess; a rising bubble's speed then jitters about a tenth
-            as much, and the water compresses a little more (docs/design.md, #volume-correction).
+            cell's neighbours, its whole excess: a rising bubble's speed then jitters a twentieth as
+            much or less, but a drop a few cells across reads its Laplace pressure less well
+            (docs/design.md, #volume-correction).
         volume_correction_speed: m/s (0.01..10; None, the default: the fixed time above): makes the
             relaxation time the simulated cell over it, so the volume drift converges with the grid,
             at the price of correction speeds that do not (docs/design.md, #volume-correction).

@@ -12,6 +12,7 @@ import warp as wp
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings
 from warp_mpm_bubbles.core.grid import FLUID
 from warp_mpm_bubbles.core.simulation import Simulation
+from scenes import squeezed_block_after_one_step
 
 wp.config.quiet = True
 G = 9.81
@@ -104,18 +105,7 @@ def test_volume_correction_asks_its_rate_of_the_overfill(tmp_path, tau, dt, shar
     # (twice the rate is off by 100%).
     from warp_mpm_bubbles.core.volume_correction import VOLUME_NOISE_BAND
 
-    scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16, gravity=(0.0, 0.0)),
-                  materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (0.1, 0.1))],
-                  solver=SolverSettings(volume_relaxation_time=tau), output=Output(path=str(tmp_path / "c.usdc")))
-    sim = Simulation(scene, "cpu")
-    x = sim.particles.x.numpy()
-    x[:, :2] = 0.05 + 0.9 * (x[:, :2] - 0.05)
-    sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
-    sim.step(dt)
-    dx = sim.grid.dx
-    u, v = sim.fields.vel[0].numpy(), sim.fields.vel[1].numpy()
-    div = ((u[1:] - u[:-1]) + (v[:, 1:] - v[:, :-1]))[:, :, 0] / dx
-    phi = sim.fields.liq_volume.numpy()[:, :, 0] / dx**3
+    sim, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau)
     deep = np.zeros_like(phi, dtype=bool)
     deep[4:-4, 4:-4] = True  # away from the squeezed block's edge
     deep &= (sim.fields.types.numpy()[:, :, 0] == FLUID) & (phi > 1.0 + VOLUME_NOISE_BAND + 0.05)

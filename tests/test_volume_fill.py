@@ -15,7 +15,7 @@ from warp_mpm_bubbles.core.cells import neighbour_kinds
 from warp_mpm_bubbles.core.volume_correction import VOLUME_NOISE_BAND, smoothed_excess
 from warp_mpm_bubbles.scene.checks import SceneError
 from benchmarks.validation import velocity_jitter as vj
-from scenes import dam_break_2d
+from scenes import dam_break_2d, squeezed_block_after_one_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -90,19 +90,8 @@ def test_the_smoothed_correction_asks_its_rate_of_the_mean_overfill(tmp_path, ta
     # over-fill (the weighted mean of its block, computed here independently) / max(tau, dt), to the
     # CG tolerance. Bound 1% on every cell: one-cell weights (the cell correction, with its band)
     # are off by 25-60%, a box mean instead of (1 2 1) by several %.
-    scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16, gravity=(0.0, 0.0)),
-                  materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (0.1, 0.1))],
-                  solver=SolverSettings(volume_relaxation_time=tau, volume_fill="smoothed"),
-                  output=Output(path=str(tmp_path / "c.usdc")))
-    sim = Simulation(scene, "cpu")
-    x = sim.particles.x.numpy()
-    x[:, :2] = 0.05 + 0.9 * (x[:, :2] - 0.05)
-    sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
-    sim.step(dt)
-    dx = sim.grid.dx
-    u, v = sim.fields.vel[0].numpy(), sim.fields.vel[1].numpy()
-    div = ((u[1:] - u[:-1]) + (v[:, 1:] - v[:, :-1]))[:, :, 0] / dx
-    phi = sim.fields.liq_volume.numpy()[:, :, 0] / dx**3
+    _, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau,
+                                                volume_fill="smoothed")
     w = np.array([1.0, 2.0, 1.0])
     smoothed = np.zeros_like(phi)
     smoothed[1:-1, 1:-1] = sum(w[a] * w[b] * phi[a:a + phi.shape[0] - 2, b:b + phi.shape[1] - 2]

@@ -17,7 +17,7 @@ from .cells import (HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trust
                     neighbour_kinds, unit)
 from .kernel_args import CellPhases, FaceField, PressureRows, Splat, StepParams
 from .lines import line_kernel
-from .volume_correction import VOLUME_FILL_SMOOTHED, cell_excess, is_hole, smoothed_excess
+from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_MOVES_POSITIONS, cell_excess, is_hole, smoothed_excess
 
 wp.set_module_options({"enable_backward": False})
 
@@ -291,6 +291,9 @@ def pressure_diagonal_and_rhs_at(
     dim = step.dim
     if two_phase != 0:
         rows.target_div[i, j, k] = 0.0
+    shift = step.volume_moves == VOLUME_MOVES_POSITIONS
+    if shift:
+        rows.correction_rhs[i, j, k] = 0.0
     if types[i, j, k] != FLUID:
         rows.diag[i, j, k] = 1.0
         rows.extra_diag[i, j, k] = 0.0
@@ -323,9 +326,12 @@ def pressure_diagonal_and_rhs_at(
         else:
             excess = cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
         target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
-        b += target / dt
-        if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
-            rows.target_div[i, j, k] = target
+        if shift:  # solved for on its own: the flow's pressure and velocity never carry it
+            rows.correction_rhs[i, j, k] = target / dt
+        else:
+            b += target / dt
+            if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
+                rows.target_div[i, j, k] = target
     rows.diag[i, j, k] = d * inv_dx2 + extra
     rows.extra_diag[i, j, k] = extra
     rows.rhs[i, j, k] = b

@@ -551,3 +551,20 @@ def fastest_of_parts(parts: wp.array(dtype=float), n: int, stride: int, max_spee
 
 P2G = {2: _p2g_kernel(2), 3: _p2g_kernel(3)}
 G2P = {2: _g2p_kernel(2), 3: _g2p_kernel(3)}
+
+
+@wp.kernel(enable_backward=False)
+def shift_particles(dt: float, geo: GridGeometry, shift: FaceField, particles: Particles):
+    """x += dt u_c(x), the volume correction's displacement (core/volume_shift.py), for the particles
+    its cells hold: active liquid, and gas of fixed density (compressible gas cells are asked
+    nothing). Through an open wall a particle leaves or flies, as in g2p; its velocity is kept."""
+    p = wp.tid()
+    ph = particles.phase[p]
+    if particles.active[p] != ACTIVE or not (ph == PHASE_LIQUID or (ph == PHASE_GAS and particles.gas_law[p] == 0)):
+        return
+    xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
+    moved = xp + dt * interpolate_velocity(shift, xp, geo.origin, geo.dx, geo.dim)
+    code = open_wall_exit(moved, geo, ph)
+    xn, kept = keep_in_domain(moved, particles.v[p], code, geo)
+    particles.active[p] = code
+    particles.x[p] = xn

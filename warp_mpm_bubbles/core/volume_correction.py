@@ -1,6 +1,7 @@
 """The volume correction (docs/design.md, #volume-correction): how far a cell's fill is beyond the
 seeding noise (its excess), and the rate at which the pressure system asks for it to be undone.
-Functions only: grid_kernels.pressure_diagonal_and_rhs calls them.
+Functions only: grid_kernels.pressure_diagonal_and_rhs calls them; core/volume_shift.py moves the
+particles when the correction moves positions rather than velocities.
 """
 
 import warp as wp
@@ -15,6 +16,12 @@ VOLUME_NOISE_BAND = wp.constant(0.1)  # the seeding noise in a cell's rest-volum
 # [solver].volume_fill: which fill the excess is read from (StepParams.volume_fill)
 VOLUME_FILLS = ("cell", "smoothed")
 VOLUME_FILL_SMOOTHED = wp.constant(1)
+
+# [solver].volume_correction_moves: what the correction moves (StepParams.volume_moves). "velocities":
+# its divergence is asked of the pressure solve, so the particles carry it; "positions": it is
+# solved for on its own and only displaces the particles (core/volume_shift.py).
+VOLUME_MOVES = ("velocities", "positions")
+VOLUME_MOVES_POSITIONS = wp.constant(1)
 
 MAX_VOLUME_SHARE = 1.0  # the most of a cell's excess one step may undo: more overshoots (and collapses)
 

@@ -554,11 +554,12 @@ G2P = {2: _g2p_kernel(2), 3: _g2p_kernel(3)}
 
 
 @wp.kernel(enable_backward=False)
-def shift_particles(dt: float, geo: GridGeometry, shift: FaceField, particles: Particles):
+def shift_particles(first: int, dt: float, geo: GridGeometry, shift: FaceField, particles: Particles):
     """x += dt u_c(x), the volume correction's displacement (core/volume_shift.py), for the particles
     its cells hold: active liquid, and gas of fixed density (compressible gas cells are asked
-    nothing). Through an open wall a particle leaves or flies, as in g2p; its velocity is kept."""
-    p = wp.tid()
+    nothing). Through an open wall a particle leaves or flies, as in g2p; its velocity is kept.
+    Particles first + tid: one range a CPU thread."""
+    p = first + wp.tid()
     ph = particles.phase[p]
     if particles.active[p] != ACTIVE or not (ph == PHASE_LIQUID or (ph == PHASE_GAS and particles.gas_law[p] == 0)):
         return

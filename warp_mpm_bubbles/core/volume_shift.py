@@ -27,6 +27,7 @@ import warp as wp
 from . import grid_kernels as gk
 from .kernel_args import face_field, particle_arrays
 from .pressure import PressureSystem
+from .threads import split
 from .transfer_kernels import shift_particles
 
 SHIFT_TOLERANCE = 1.0e-2  # the correction's solve: relative residual (see the module docstring)
@@ -58,7 +59,7 @@ class VolumeShift:
         info = solver.solve(
             PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
             tol=SHIFT_TOLERANCE, max_iter=settings.cg_max_iterations, preconditioner=settings.preconditioner,
-            singular=singular, n_fluid=n_fluid, region=r.box if r.enabled else None,
+            singular=singular, n_fluid=n_fluid, region=r.box if r.enabled else None, same_system=True,
         )
         solver.predicted = predicted
         self.iterations += info.iterations
@@ -71,7 +72,8 @@ class VolumeShift:
         wp.copy(f.pressure, self.full_pressure)
 
     def move(self, sim, dt: float):
-        """After g2p: x += dt u_c(x) for the particles the correction's cells hold."""
-        sim.launch(shift_particles, sim.particles.count,
-                   [dt, sim.geometry, face_field(self.shift), particle_arrays(sim.particles)])
+        """After g2p: x += dt u_c(x) for the particles the correction's cells hold (a range a thread)."""
+        args = [dt, sim.geometry, face_field(self.shift), particle_arrays(sim.particles)]
+        cuts = split(0, sim.particles.count, sim.parallel.threads)
+        sim.launch_parts(shift_particles, [(b - a, [a, *args]) for a, b in zip(cuts, cuts[1:])])
         sim.book_outflow()  # moved through an open wall

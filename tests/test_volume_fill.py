@@ -91,7 +91,7 @@ def test_the_smoothed_correction_asks_its_rate_of_the_mean_overfill(tmp_path, ta
     # CG tolerance. Bound 1% on every cell: one-cell weights (the cell correction, with its band)
     # are off by 25-60%, a box mean instead of (1 2 1) by several %.
     _, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau,
-                                                volume_fill="smoothed")
+                                                volume_fill="smoothed", volume_correction_moves="velocities")
     w = np.array([1.0, 2.0, 1.0])
     smoothed = np.zeros_like(phi)
     smoothed[1:-1, 1:-1] = sum(w[a] * w[b] * phi[a:a + phi.shape[0] - 2, b:b + phi.shape[1] - 2]
@@ -143,5 +143,5 @@ def test_the_run_summary_names_the_fill():
     from warp_mpm_bubbles.io.runner import _relaxation
 
     for fill in ("cell", "smoothed"):
-        solver = SolverSettings(volume_relaxation_time=0.01, volume_fill=fill)
+        solver = SolverSettings(volume_relaxation_time=0.01, volume_fill=fill, volume_correction_moves="velocities")
         assert _relaxation(solver, 0.01) == f"10 ms (fixed, {fill} fill)"

@@ -189,6 +189,35 @@ def gather_component(vel: wp.array3d(dtype=float), X: wp.vec3, dim: int, dx: flo
 
 
 @wp.func
+def sample_component(vel: wp.array3d(dtype=float), X: wp.vec3, dim: int):
+    """One face component's value at a particle (no gradient): gather_component's weights alone."""
+    s = make_stencil(X, dim)
+    value = float(0.0)
+    if dim == 3:  # constant bounds, so the loops unroll
+        for i in range(3):
+            for j in range(3):
+                w = s.wx[i] * s.wy[j]
+                for k in range(3):
+                    value += w * s.wz[k] * vel[s.base[0] + i, s.base[1] + j, s.base[2] + k]
+    else:
+        for i in range(3):
+            for j in range(3):
+                value += s.wx[i] * s.wy[j] * s.wz[0] * vel[s.base[0] + i, s.base[1] + j, s.base[2]]
+    return value
+
+
+@wp.func
+def sample_faces(vel: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
+    """A face field's value at xp, without the APIC gradient that interpolate_velocity also computes."""
+    inv_dx = 1.0 / dx
+    out = wp.vec3(sample_component(vel.u, grid_coord(xp, origin, inv_dx, U_OFFSET), dim),
+                  sample_component(vel.v, grid_coord(xp, origin, inv_dx, V_OFFSET), dim), 0.0)
+    if dim == 3:
+        out[2] = sample_component(vel.w, grid_coord(xp, origin, inv_dx, W_OFFSET), dim)
+    return out
+
+
+@wp.func
 def gather_velocity_and_affine(vel: FaceField, xp: wp.vec3, origin: wp.vec3, dx: float, dim: int):
     """APIC gather at xp: the velocity and the affine matrix C (rows: one per face component)."""
     inv_dx = 1.0 / dx
@@ -564,7 +593,7 @@ def shift_particles(first: int, dt: float, geo: GridGeometry, shift: FaceField, 
     if particles.active[p] != ACTIVE or not (ph == PHASE_LIQUID or (ph == PHASE_GAS and particles.gas_law[p] == 0)):
         return
     xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, geo.dim)
-    moved = xp + dt * interpolate_velocity(shift, xp, geo.origin, geo.dx, geo.dim)
+    moved = xp + dt * sample_faces(shift, xp, geo.origin, geo.dx, geo.dim)
     code = open_wall_exit(moved, geo, ph)
     xn, kept = keep_in_domain(moved, particles.v[p], code, geo)
     particles.active[p] = code

@@ -38,7 +38,7 @@ from .geometry import grid_geometry
 from .host_reads import HostReads
 from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
-from .volume_correction import VOLUME_FILLS, VOLUME_MOVES
+from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_FILLS, VOLUME_MOVES
 from .pressure import PressureSolver, PressureSystem, SolveInfo
 from .volume_shift import VolumeShift
 from .seeding import seed_particles
@@ -123,6 +123,8 @@ class Simulation:
         self.sealed = sealed_regions.SealedRegions(g.cells, self.device) if scene.colliders else None
         # [solver].volume_correction_moves = "positions": the correction's own solve and shift (core/volume_shift.py)
         self.volume_shift = VolumeShift(self) if self.volume_moves else None
+        if self.volume_fill == VOLUME_FILL_SMOOTHED:
+            self.fields.enclosed_cells = self.fields.cells(wp.int32)
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
         self.ctx = self._context()  # what the stages see (core/context.py)
         self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
@@ -412,7 +414,11 @@ class Simulation:
         f.counters.zero_()
         step = self._step_params(dt)
         rate = volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt)
-        fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters]
+        if self.volume_fill == VOLUME_FILL_SMOOTHED:  # its neighbours' enclosed flags, before any cell reads them
+            self.launch_lines(gk.mark_enclosed, r.cell_lines, [cell_phases(f), f.gas_kv, g.dim, self.two_phase,
+                                                               f.enclosed_cells])
+        fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters,
+                  f.enclosed_cells]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
         slabs = line_slabs(*r.cell_lines, self.parallel.threads)
         self.launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])

@@ -205,6 +205,7 @@ class GridFields:
         self.target_div, self.gas_rate = placeholder(), placeholder()
         self.correction_rhs = placeholder()
         self.correction_potential = placeholder()
+        self.enclosed_cells = placeholder(wp.int32)  # the smoothed fill's (core/grid_kernels.mark_enclosed)
         self.ceiling = placeholder(wp.int32)
         self.gas_vel = self.gas_valid = None  # the gas's own face field (sharp interface, own liquid field)
         # fluid cells, pinned cells (pressure_diagonal_and_rhs), then a copy of nonfinite: one read.

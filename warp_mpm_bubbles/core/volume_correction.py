@@ -6,7 +6,7 @@ particles when the correction moves positions rather than velocities.
 
 import warp as wp
 
-from .cells import HOLE_FRACTION, cell_type_at, fill_fraction, neighbour_kinds
+from .cells import HOLE_FRACTION, cell_type_at, fill_fraction
 from .grid import FLUID
 from .kernel_args import CellPhases, Splat
 
@@ -96,7 +96,7 @@ def cell_excess(splat: Splat, two_phase: int, c: wp.vec3i, enclosed: int, inv_dx
 
 @wp.func
 def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i, dim: int, enclosed: int,
-                    inv_dx2: float, dx: float):
+                    inv_dx2: float, dx: float, enclosed_cells: wp.array3d(dtype=wp.int32)):
     """The excess of [solver].volume_fill = "smoothed" (docs/design.md, #volume-correction): the
     excess, with no noise band, of the mean held volume over the fluid cells of the 3^dim block,
     weighted (1 2 1)/4 along each axis. A neighbour beside a free surface, a wall or compressible
@@ -131,7 +131,7 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
                     w = float((2 - abs(a)) * (2 - abs(b)) * (2 - abs(e)))
                     held = held_volume(splat, two_phase, n)
                     beside = a != 0 or b != 0 or e != 0
-                    if beside and neighbour_kinds(types, cells.phase, splat.gas_kv, n, dim, two_phase)[1] == 0:
+                    if beside and enclosed_cells[n[0], n[1], n[2]] == 0:  # grid_kernels.mark_enclosed
                         held = cell_volume
                     total += w * held
                     weight += w

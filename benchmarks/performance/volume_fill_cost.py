@@ -11,10 +11,10 @@ velocities): the variants run alternately on the same scene, so each ratio is me
     python -m benchmarks.performance.volume_fill_cost            # hysing_2d 80 and adelsberger_3d 27 to 0.3 s, 3 rounds
     python -m benchmarks.performance.volume_fill_cost --quick    # hysing_2d 20 and adelsberger_3d 12 to 0.1 s, 1 round
 
-Measured 2026-12-07 (2-core AMD EPYC, quiet), seconds a step, smoothed over cell, per round, two
-runs: hysing_2d at 80 cells 0.991 / 0.975 / 0.997 and 1.011 / 0.975 / 0.939 (no cost beyond the
-noise); adelsberger_3d at 27 cells 1.154 / 1.051 / 1.099 and 1.050 / 1.031 / 1.171 (5-17%). The
-positions variant's figures: benchmarks/results/volume_fill_cost/.
+Measured 2026-12-07 (2-core AMD EPYC), seconds a step over the cell fill's, per round: smoothed
+0.886 / 0.954 / 0.807 (hysing_2d at 80 cells: the noise) and 0.991 / 1.023 / 0.942 (adelsberger_3d at
+27 cells, with each cell's enclosed flag from one pass; 1.05-1.17 before); smoothed moving positions
+1.110 / 1.294 / 0.984 and 1.328 / 1.210 / 1.188.
 """
 
 from __future__ import annotations

@@ -80,3 +80,7 @@ def test_the_verdicts(study):
     times = [1.976, 1.952, 1.927]
     assert study.convergence(times, ratios, spreads=[0.23, 0.084, 0.072])["verdict"] == "within spread"
     assert study.convergence(times, ratios, spreads=[0.02, 0.02, 0.02])["verdict"] == "no"
+    # one level (a run of one resolution, e.g. the finest alone): nothing to judge, and no crash
+    # (the report of `--resolutions 160` once raised after its 13-minute run)
+    for limit in (None, 0.0):
+        assert study.convergence([0.2416], [], limit=limit)["verdict"] == "-"

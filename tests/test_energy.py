@@ -30,13 +30,13 @@ L, U, N, T_END = 0.1, 0.01, 32, 0.5
 DT = (L / N) ** 2 / (4 * 1e-3)  # the step of tests/test_viscosity.py (its viscous limit), 205 steps
 
 
-def vortex_dissipation(tmp_path, max_dt, seed=0):
+def vortex_dissipation(tmp_path, max_dt, seed=0, **solver):
     """u = U sin(pi x/L) cos(pi y/L), v = -U cos(pi x/L) sin(pi y/L) in a full free-slip box, no
     gravity, no viscosity: a steady Euler flow, so every joule lost is the transfers' (APIC's
     grid-scale filtering). Returns the loss per step, -ln(E_end/E_0)/steps, and the steps."""
     scene = Scene(domain=Domain(size=(L, L), cell_size=L / N, gravity=(0.0, 0.0)),
                   materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (L, L))],
-                  solver=SolverSettings(max_dt=max_dt, seed=seed), output=Output(path=str(tmp_path / "tg.usdc")))
+                  solver=SolverSettings(max_dt=max_dt, seed=seed, **solver), output=Output(path=str(tmp_path / "tg.usdc")))
     sim = Simulation(scene, "cpu")
     x = sim.particles.x.numpy()
     kx, ky = np.pi * x[:, 0] / L, np.pi * x[:, 1] / L
@@ -56,8 +56,9 @@ def test_inviscid_vortex_energy_budget_is_the_transfers_dissipation(tmp_path):
     # second, so per step it doubles with the step. Bounds +-15% of the measurements. A velocity gain
     # of 0.2% per step adds -4e-3 per step (the budget goes negative, far outside); so does any gain
     # above about 0.05% per step. Dropping APIC's affine term in p2g (PIC) dissipates many times more.
-    loss_1, steps_1 = vortex_dissipation(tmp_path, DT)
-    loss_2, steps_2 = vortex_dissipation(tmp_path, 2 * DT)
+    moves = {"volume_fill": "cell", "volume_correction_moves": "velocities"}  # named: measured with them
+    loss_1, steps_1 = vortex_dissipation(tmp_path, DT, **moves)
+    loss_2, steps_2 = vortex_dissipation(tmp_path, 2 * DT, **moves)
     print(f"inviscid vortex: energy lost per step {loss_1:.3e} ({steps_1} steps), {loss_2:.3e} ({steps_2} steps)")
     assert 2.9e-4 < loss_1 < 4.0e-4
     assert 3.5e-4 < loss_2 < 4.7e-4
@@ -105,7 +106,9 @@ def test_volume_correction_asks_its_rate_of_the_overfill(tmp_path, tau, dt, shar
     # (twice the rate is off by 100%).
     from warp_mpm_bubbles.core.volume_correction import VOLUME_NOISE_BAND
 
-    sim, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau)
+    # (the cell fill moving velocities, named: tests/test_volume_shift.py reads the positions mode's)
+    sim, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau,
+                                                  volume_fill="cell", volume_correction_moves="velocities")
     deep = np.zeros_like(phi, dtype=bool)
     deep[4:-4, 4:-4] = True  # away from the squeezed block's edge
     deep &= (sim.fields.types.numpy()[:, :, 0] == FLUID) & (phi > 1.0 + VOLUME_NOISE_BAND + 0.05)

@@ -79,7 +79,7 @@ def test_closed_tank_is_one_sealed_region(tmp_path, rod):
     singular, solve = [], sim.solver.solve
     sim.solver.solve = lambda *args, **kwargs: singular.append(kwargs["singular"]) or solve(*args, **kwargs)
     sim.step(sim.stable_dt())
-    assert singular == [True]
+    assert singular and set(singular) == {True}  # the step's solve, and the shift's when positions move
     if rod:
         assert region_counts(sim) == (1, 1)
     else:

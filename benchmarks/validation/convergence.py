@@ -279,6 +279,8 @@ def convergence(values: list[float], ratios: list[float], limit: float | None = 
     every level is at the limit. With `spreads` (an extremum's time), differences that do not shrink
     but each lie within the two levels' mean spread are "within spread"."""
     d = [b - a for a, b in zip(values, values[1:])]
+    if len(values) < 2:  # one level (a run of one resolution): nothing to compare yet
+        return {"differences": d, "orders": [], "shrinking": False, "verdict": "-"}
     if limit is not None:
         e = [abs(v - limit) for v in values]
         orders = [math.log(e0 / e1) / math.log(r) if e0 and e1 else float("nan") for e0, e1, r in zip(e, e[1:], ratios)]

@@ -12,7 +12,7 @@ Hysing-like rise (v = 0.24 tanh(t / 0.2)) reads 0.0011 m/s, 0.5% of the peak, an
 below. A quadratic through the rates is exact at the centre for any cubic speed: the same noise-free
 rise reads 6e-5 m/s (tests/test_velocity_jitter.py), so a jitter of 0.1% of the peak can be read.
 
-    python -m benchmarks.validation.velocity_jitter              # 40 cells across, ten variants: 1.5 min on 2 CPU cores
+    python -m benchmarks.validation.velocity_jitter              # 40 cells across, every variant: 2 min on 2 CPU cores
     python -m benchmarks.validation.velocity_jitter --cells 80   # about 25 min (2-4 min a variant)
     python -m benchmarks.validation.velocity_jitter --cells 80 --variants "default,volume correction off"
     python -m benchmarks.validation.velocity_jitter --quick      # 10 cells, two variants
@@ -51,6 +51,8 @@ VARIANTS = {  # label -> SolverSettings fields changed from the production defau
     "max_dt 2 ms": {"max_dt": 2e-3}, "liquid_velocity shared": {"liquid_velocity": "shared"},
     "gas_films passive": {"gas_films": "passive"}, "volume correction off": {"volume_relaxation_time": 0.0},
     "volume_fill smoothed": {"volume_fill": "smoothed"},
+    "volume_correction_moves positions": {"volume_correction_moves": "positions"},
+    "smoothed and positions": {"volume_fill": "smoothed", "volume_correction_moves": "positions"},
 }
 T_END, BIN, WINDOW, FROM = 1.5, 0.025, 0.15, 0.3  # s
 

@@ -57,18 +57,21 @@ class StepParams:
     two_phase: int  # 1 with gas in the scene (its arrays are real), else 0
     interface: int  # INTERFACE_SHARP or INTERFACE_BASELINE (grid.py)
     volume_fill: int  # the volume correction's fill: 0 each cell's own, VOLUME_FILL_SMOOTHED (volume_correction.py)
+    volume_moves: int  # what it moves: 0 velocities (the solve's rhs), VOLUME_MOVES_POSITIONS (correction_rhs)
 
 
 @wp.struct
 class PressureRows:
     """Each fluid cell's row of the pressure system (core/pressure.py): the diagonal, the gas's
-    kappa/dt^2 part of it, the right-hand side, and the divergence the volume correction asks of the
-    cell's liquid (two-phase runs only)."""
+    kappa/dt^2 part of it, the right-hand side, the divergence the volume correction asks of the
+    cell's liquid (two-phase runs only), and, when the correction moves positions, the right-hand
+    side of its own solve (core/volume_shift.py) instead."""
 
     diag: wp.array3d(dtype=float)
     extra_diag: wp.array3d(dtype=float)
     rhs: wp.array3d(dtype=float)
     target_div: wp.array3d(dtype=float)
+    correction_rhs: wp.array3d(dtype=float)
 
 
 def face_field(arrays) -> FaceField:
@@ -93,12 +96,13 @@ def splat(fields) -> Splat:
     return s
 
 
-def step_params(grid, dt: float, two_phase: int, interface: int, volume_fill: int = 0) -> StepParams:
+def step_params(grid, dt: float, two_phase: int, interface: int, volume_fill: int = 0,
+                volume_moves: int = 0) -> StepParams:
     """The step's numbers for a MacGrid."""
     s = StepParams()
     s.dt, s.dx, s.dim = dt, grid.dx, grid.dim
     s.inv_cell_vol = 1.0 / grid.dx**3
-    s.two_phase, s.interface, s.volume_fill = two_phase, interface, volume_fill
+    s.two_phase, s.interface, s.volume_fill, s.volume_moves = two_phase, interface, volume_fill, volume_moves
     return s
 
 
@@ -106,6 +110,7 @@ def pressure_rows(fields) -> PressureRows:
     """The pressure system's rows of GridFields."""
     r = PressureRows()
     r.diag, r.extra_diag, r.rhs, r.target_div = fields.diag, fields.extra_diag, fields.rhs, fields.target_div
+    r.correction_rhs = fields.correction_rhs
     return r
 
 

@@ -504,10 +504,12 @@ class PressureSolver:
         self._run(self._record_cells(shift_fluid, [self.done, types, v, sums, 0, slot, n]), row)
 
     def solve(self, system: PressureSystem, b, x, *, tol: float, max_iter: int, singular: bool, n_fluid: int,
-              preconditioner: str = "multigrid", region=None):
+              preconditioner: str = "multigrid", region=None, same_system: bool = False):
         """Solve A x = b in place; x holds the warm start. preconditioner: "none" | "jacobi" | "multigrid".
         region: None, or a box (lo, hi) that holds every fluid cell and outside which x is already 0
-        (the simulation's grid box): the one pass that masks x and finds the fluid box covers only it."""
+        (the simulation's grid box): the one pass that masks x and finds the fluid box covers only it.
+        same_system: A is the last solve's, unchanged (a second right-hand side): its multigrid
+        hierarchy is kept rather than built again."""
         mode = PRECONDITIONERS.index(preconditioner)
         self.host_reads = 0
         self._find_box(system.types, x, region)
@@ -532,7 +534,7 @@ class PressureSolver:
             self._center(system.types, b, self.scalars, 0, B_SUM, project)
         self._sum_fluid(system.types, b, B2, squares=True)
         self._run(self._record_cells(zero_if_trivial, [self.scalars, x]))
-        if mode == MULTIGRID:
+        if mode == MULTIGRID and not (same_system and self.multigrid is not None):
             if self.multigrid is None:
                 self.multigrid = MultigridPreconditioner(self.shape, self.dim, self.dx, self.device,
                                                          parallel=self.parallel)

@@ -382,6 +382,9 @@ class SealedRegions:
                 f"([domain].walls), or stop the collider sooner or keep it off the walls ([colliders.N].stop, "
                 f".velocity, .acceleration, .center)")
 
+    def remove_rhs_means(self, sim, fields):
+        self._remove_means(sim, fields.types, fields.rhs)
+
     def center(self, sim, fields):
         """After a solve that settle() prepared: each sealed region's pressure to mean zero, the level
         the solver gives a closed tank (one sealed region), rather than the root's zero."""

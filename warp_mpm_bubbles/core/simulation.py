@@ -38,8 +38,9 @@ from .geometry import grid_geometry
 from .host_reads import HostReads
 from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
-from .volume_correction import VOLUME_FILLS
+from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_FILLS, VOLUME_MOVES
 from .pressure import PressureSolver, PressureSystem, SolveInfo
+from .volume_shift import VolumeShift
 from .seeding import seed_particles
 from .context import StepContext
 from .launch import Launcher
@@ -120,6 +121,10 @@ class Simulation:
         # Fluid regions no free surface reaches, one apart from another: only solids inside the domain (the
         # colliders) can seal one off; without them the fluid is one region or reaches the air.
         self.sealed = sealed_regions.SealedRegions(g.cells, self.device) if scene.colliders else None
+        # [solver].volume_correction_moves = "positions": the correction's own solve and shift (core/volume_shift.py)
+        self.volume_shift = VolumeShift(self) if self.volume_moves else None
+        if self.volume_fill == VOLUME_FILL_SMOOTHED:
+            self.fields.enclosed_cells = self.fields.cells(wp.int32)
         self._graphs: dict = {}  # step_graph's captured stretches (CUDA only)
         self.ctx = self._context()  # what the stages see (core/context.py)
         self.voids = VoidPass(self)  # particle-free cells inside the liquid are not free surface (core/voids.py)
@@ -168,6 +173,7 @@ class Simulation:
         self.geometry = grid_geometry(g, self.gravity, self.up, open_lo, open_hi)  # what the particle kernels take
         self.interface = INTERFACES.index(scene.solver.interface)
         self.volume_fill = VOLUME_FILLS.index(scene.solver.volume_fill)
+        self.volume_moves = VOLUME_MOVES.index(scene.solver.volume_correction_moves)
         self.two_phase = int(self.has_gas)
 
     def _seed(self):
@@ -388,7 +394,7 @@ class Simulation:
 
     def _phase_classify(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
-        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
+        step = self._step_params(dt)
         self.launch_lines(gk.classify_cells, r.cell_lines, [step, wp.vec3i(*g.ghost), wp.vec3i(*g.interior), self.wall_lo,
                                                             self.wall_hi, f.cell_count, splat(f), f.types])
 
@@ -397,7 +403,7 @@ class Simulation:
 
     def _phase_face_density(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
-        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
+        step = self._step_params(dt)
         for a in g.axes:
             self.launch_lines(gk.zero_solid_faces, r.face_lines[a], [a, f.types, f.vel[a]])
             self.launch_lines(gk.face_inverse_density, r.face_lines[a],
@@ -406,9 +412,13 @@ class Simulation:
     def _phase_assemble(self, dt: float, again: bool):
         g, f, r = self.grid, self.fields, self.region
         f.counters.zero_()
-        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
+        step = self._step_params(dt)
         rate = volume_relaxation_rate(self.scene.solver.volume_relaxation(g.dx), dt)
-        fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters]
+        if self.volume_fill == VOLUME_FILL_SMOOTHED:  # its neighbours' enclosed flags, before any cell reads them
+            self.launch_lines(gk.mark_enclosed, r.cell_lines, [cell_phases(f), f.gas_kv, g.dim, self.two_phase,
+                                                               f.enclosed_cells])
+        fields = [cell_phases(f), face_field(f.inv_rho), face_field(f.vel), splat(f), pressure_rows(f), f.counters,
+                  f.enclosed_cells]
         # Slabs at once, each counting into its own counters (integers: the total is exact in any order).
         slabs = line_slabs(*r.cell_lines, self.parallel.threads)
         self.launch_parts(gk.pressure_diagonal_and_rhs, [(d, [slab, step, rate, q * threads.CACHE_LINE_FLOATS, *fields])
@@ -440,10 +450,15 @@ class Simulation:
         if apart:
             self.sealed.center(self, f)
         self.stats.record(info)
-        step = step_params(g, dt, self.two_phase, self.interface, self.volume_fill)
+        step = self._step_params(dt)
         for a in g.axes:
             self.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
                               [step, a, f.types, f.pressure, f.inv_rho[a], f.vel[a], f.valid[a]])
+        if self.volume_shift:
+            self.volume_shift.solve(self, step, singular, n_fluid, apart)
+
+    def _step_params(self, dt: float):
+        return step_params(self.grid, dt, self.two_phase, self.interface, self.volume_fill, self.volume_moves)
 
     def _settle_sealed(self, counts, n_fluid: int, dt: float) -> bool:
         """Stop a run whose solids squeeze liquid they shut in; make each sealed region solvable on
@@ -473,6 +488,8 @@ class Simulation:
 
     def _phase_g2p(self, dt: float, again: bool):
         self._grid_to_particles(dt)
+        if self.volume_shift:
+            self.volume_shift.move(self, dt)
 
     def _grid_to_particles(self, dt: float):
         f, p = self.fields, self.particles

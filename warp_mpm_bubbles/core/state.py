@@ -29,7 +29,7 @@ from .threads import CACHE_LINE_FLOATS
 PARTICLE_FIELDS = {"x": wp.vec3, "v": wp.vec3, "C": wp.mat33, "mass": float, "vol0": float, "J": float,
                    "phase": wp.int32, "active": wp.int32, "material": wp.int32, "gas_law": wp.int32,
                    "gas_gamma": float, "ids": wp.int64}
-GRID_CHECKPOINT = ("pressure", "vented_mass", "outflow_mass")  # what a step reads from the previous one
+GRID_CHECKPOINT = ("pressure", "vented_mass", "outflow_mass", "correction_potential")  # what a step reads from the previous one
 
 
 @wp.kernel(enable_backward=False)
@@ -203,6 +203,9 @@ class GridFields:
         self.gas_mass, self.gas_volume, self.gas_pv, self.gas_kv = (placeholder() for _ in range(4))
         self.gas_count = placeholder(wp.int32)
         self.target_div, self.gas_rate = placeholder(), placeholder()
+        self.correction_rhs = placeholder()
+        self.correction_potential = placeholder()
+        self.enclosed_cells = placeholder(wp.int32)  # the smoothed fill's (core/grid_kernels.mark_enclosed)
         self.ceiling = placeholder(wp.int32)
         self.gas_vel = self.gas_valid = None  # the gas's own face field (sharp interface, own liquid field)
         # fluid cells, pinned cells (pressure_diagonal_and_rhs), then a copy of nonfinite: one read.

@@ -1,11 +1,12 @@
 """The volume correction (docs/design.md, #volume-correction): how far a cell's fill is beyond the
 seeding noise (its excess), and the rate at which the pressure system asks for it to be undone.
-Functions only: grid_kernels.pressure_diagonal_and_rhs calls them.
+Functions only: grid_kernels.pressure_diagonal_and_rhs calls them; core/volume_shift.py moves the
+particles when the correction moves positions rather than velocities.
 """
 
 import warp as wp
 
-from .cells import HOLE_FRACTION, cell_type_at, fill_fraction, neighbour_kinds
+from .cells import HOLE_FRACTION, cell_type_at, fill_fraction
 from .grid import FLUID
 from .kernel_args import CellPhases, Splat
 
@@ -15,6 +16,12 @@ VOLUME_NOISE_BAND = wp.constant(0.1)  # the seeding noise in a cell's rest-volum
 # [solver].volume_fill: which fill the excess is read from (StepParams.volume_fill)
 VOLUME_FILLS = ("cell", "smoothed")
 VOLUME_FILL_SMOOTHED = wp.constant(1)
+
+# [solver].volume_correction_moves: what the correction moves (StepParams.volume_moves). "velocities":
+# its divergence is asked of the pressure solve, so the particles carry it; "positions": it is
+# solved for on its own and only displaces the particles (core/volume_shift.py).
+VOLUME_MOVES = ("velocities", "positions")
+VOLUME_MOVES_POSITIONS = wp.constant(1)
 
 MAX_VOLUME_SHARE = 1.0  # the most of a cell's excess one step may undo: more overshoots (and collapses)
 
@@ -89,7 +96,7 @@ def cell_excess(splat: Splat, two_phase: int, c: wp.vec3i, enclosed: int, inv_dx
 
 @wp.func
 def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i, dim: int, enclosed: int,
-                    inv_dx2: float, dx: float):
+                    inv_dx2: float, dx: float, enclosed_cells: wp.array3d(dtype=wp.int32)):
     """The excess of [solver].volume_fill = "smoothed" (docs/design.md, #volume-correction): the
     excess, with no noise band, of the mean held volume over the fluid cells of the 3^dim block,
     weighted (1 2 1)/4 along each axis. A neighbour beside a free surface, a wall or compressible
@@ -124,7 +131,7 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
                     w = float((2 - abs(a)) * (2 - abs(b)) * (2 - abs(e)))
                     held = held_volume(splat, two_phase, n)
                     beside = a != 0 or b != 0 or e != 0
-                    if beside and neighbour_kinds(types, cells.phase, splat.gas_kv, n, dim, two_phase)[1] == 0:
+                    if beside and enclosed_cells[n[0], n[1], n[2]] == 0:  # grid_kernels.mark_enclosed
                         held = cell_volume
                     total += w * held
                     weight += w

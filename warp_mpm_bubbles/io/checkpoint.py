@@ -214,7 +214,10 @@ def _restore(sim, data) -> None:
         if n < particles.capacity:  # beyond the count stays zero (appends rely on it)
             getattr(particles, name)[n:].zero_()
     for name in GRID_CHECKPOINT:
-        getattr(sim.fields, name).assign(data[name])
+        if name in data.files and data[name].shape == getattr(sim.fields, name).shape:
+            getattr(sim.fields, name).assign(data[name])
+        else:  # an older checkpoint's, or a field this run does not keep
+            getattr(sim.fields, name).zero_()
     # The core's and the stages' host values by name (an older checkpoint's missing ones keep their fresh value).
     sim.load_state({name[len("host_"):]: data[name] for name in data.files if name.startswith("host_")})
     sim.time, sim.frame = float(data["time"]), int(data["frame"])

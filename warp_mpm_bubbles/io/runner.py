@@ -252,7 +252,8 @@ def _relaxation(solver, dx: float) -> str:
     if tau == 0:
         return "off"
     source = "fixed" if solver.volume_correction_speed is None else f"cell / {solver.volume_correction_speed:g} m/s"
-    return f"{1e3 * tau:.3g} ms ({source}, {solver.volume_fill} fill)"
+    moves = ", moves positions" if solver.volume_correction_moves == "positions" else ""
+    return f"{1e3 * tau:.3g} ms ({source}, {solver.volume_fill} fill{moves})"
 
 
 def summary(result: RunResult) -> str:
@@ -275,6 +276,10 @@ def summary(result: RunResult) -> str:
     lines.append(f"  pressure CG: {st.cg_iterations:,} iterations over {st.cg_solves} solves "
                  f"(mean {mean:.1f}, max {st.cg_max_iterations}), worst residual {st.cg_worst_residual:.1e}"
                  + (f", {st.cg_unconverged} solves hit the iteration cap" if st.cg_unconverged else ""))
+    if sim.volume_shift:  # timed with the pressure stage
+        vs = sim.volume_shift
+        lines.append(f"  volume shift CG (the correction's own solve): {vs.iterations:,} iterations over "
+                     f"{vs.solves} solves (mean {vs.iterations / max(vs.solves, 1):.1f})")
     if sim.has_gas:
         b = sim.gas_budget()
         # shares of all the gas the run has had: the conserved total (seeded and injected) and the

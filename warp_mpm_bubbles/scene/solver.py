@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from .checks import _Checker, _g
 from .quality import DEFAULT_QUALITY, GOVERNED, PRESETS, preset_value
 from ..core.grid import INTERFACES, PRECONDITIONERS
-from ..core.volume_correction import VOLUME_FILLS
+from ..core.volume_correction import VOLUME_FILLS, VOLUME_MOVES
 from .limits import (
     DEFAULT_VOLUME_RELAXATION, MAX_CG_ITERATIONS, MAX_STEPS_LIMIT, MAX_STEPS_PER_FRAME, MAX_VOLUME_CORRECTION_SPEED,
     MAX_VOLUME_RELAXATION, MIN_VOLUME_CORRECTION_SPEED, MIN_VOLUME_RELAXATION,
@@ -51,6 +51,12 @@ class SolverSettings:
             cell's neighbours, its whole excess: a rising bubble's speed then jitters a twentieth as
             much or less, but a drop a few cells across reads its Laplace pressure less well
             (docs/design.md, #volume-correction).
+        volume_correction_moves: "velocities" (default) | "positions": what the correction moves.
+            "velocities": its divergence is asked of the pressure solve, so the particles carry it
+            and the pressure holds its part. "positions": it is solved for on its own (a second,
+            loosely converged solve a step) and only displaces the particles, so the flow's pressure
+            and velocity are the flow's alone; with the smoothed fill a drop's Laplace pressure no
+            longer swings (docs/design.md, #volume-correction).
         volume_correction_speed: m/s (0.01..10; None, the default: the fixed time above): makes the
             relaxation time the simulated cell over it, so the volume drift converges with the grid,
             at the price of correction speeds that do not (docs/design.md, #volume-correction).
@@ -75,6 +81,7 @@ class SolverSettings:
     volume_relaxation_time: float | None = None  # s: excess undone at excess / this per second; None: 0.01 or the speed's
     volume_correction_speed: float | None = None  # m/s: tau = cell / this; None: the fixed time
     volume_fill: str = "cell"  # the fill the correction reads: each cell's own, or "smoothed" over its neighbours
+    volume_correction_moves: str = "velocities"  # or "positions": a solve of its own displaces the particles
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
     volume_correction: float | None = None  # removed: refused with the conversion (see _validate)
@@ -102,6 +109,8 @@ class SolverSettings:
             c.fail(f"{t}.volume_correction", self.volume_correction, _VOLUME_CORRECTION_REMOVED)
         self._validate_volume_relaxation(c, t)
         self.volume_fill = c.choice(f"{t}.volume_fill", self.volume_fill, VOLUME_FILLS)
+        self.volume_correction_moves = c.choice(f"{t}.volume_correction_moves", self.volume_correction_moves,
+                                                VOLUME_MOVES)
         self.seed = c.number(f"{t}.seed", self.seed, ge=0, le=2**63 - 1, whole=True)
         self.max_steps_per_frame = c.number(f"{t}.max_steps_per_frame", self.max_steps_per_frame, ge=1,
                                             le=MAX_STEPS_LIMIT, whole=True)

@@ -1,0 +1,79 @@
+"""The volume correction that moves positions: `[solver].volume_correction_moves = "positions"`.
+
+The default correction asks each over- or under-filled liquid cell for a divergence d, and asks it of
+the step's pressure solve (core/volume_correction.py). The particles then carry that divergence in
+their velocities, and the next step's u* still holds part of it: the solve undoes that part and asks
+the new d, so the pressure it returns holds a term of about rho (d_old - d_new) L^2 / dt. With the
+cell fill's dead band most cells have d = 0 and the term is small. With the smoothed fill every
+enclosed cell has some d, and a drop's Laplace jump swung by +-12% at 4 cells per radius.
+
+This mode keeps the correction out of the flow altogether:
+- the step's solve sees the flow's right-hand side only, so its pressure and velocity are the flow's;
+- the correction's own system, A phi = d / dt with the same operator A, gives a displacement field
+  u_c = -dt / rho grad phi on the faces, as the projection would, with div u_c = d;
+- after g2p each particle of the liquid (and of a gas of fixed density, which the correction's cells
+  also hold) moves by dt u_c at its position; its velocity is not touched.
+
+phi is a correction to a correction, so its solve stops at SHIFT_TOLERANCE: a 1% error in a
+displacement of about excess dx dt / tau (a thousandth of a cell a step at rest) is far below the
+particles' spacing noise. It starts from the last step's phi, which the checkpoint keeps, so a
+resumed run moves exactly as one that never stopped.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from . import grid_kernels as gk
+from .kernel_args import face_field, particle_arrays
+from .pressure import PressureSystem
+from .threads import split
+from .transfer_kernels import shift_particles
+
+SHIFT_TOLERANCE = 1.0e-2  # the correction's solve: relative residual (see the module docstring)
+
+
+class VolumeShift:
+    """The correction's own solve and the particles' displacement (see the module docstring)."""
+
+    def __init__(self, sim):
+        f = sim.fields
+        f.correction_rhs, f.correction_potential = f.cells(), f.cells()
+        self.full_pressure = wp.zeros_like(f.pressure)  # the step's, kept while phi borrows its array
+        self.shift = [wp.zeros_like(v) for v in f.vel]  # u_c on the faces
+        self.marks = [wp.zeros_like(v) for v in f.valid]  # which faces the gradient set (unused)
+        self.iterations = self.solves = 0  # for the run summary
+
+    def solve(self, sim, step, singular: bool, n_fluid: int, apart: bool):
+        """After the step's projection: phi from A phi = d / dt, then u_c = -dt / rho grad phi.
+
+        Solved in the step's own arrays (f.rhs, f.pressure), so the solver's recorded launches
+        replay; the pressure, and the solver's guess of how long the next solve takes, are put back."""
+        f, r, solver, settings = sim.fields, sim.region, sim.solver, sim.scene.solver
+        wp.copy(self.full_pressure, f.pressure)
+        wp.copy(f.pressure, f.correction_potential)
+        wp.copy(f.rhs, f.correction_rhs)
+        if apart:  # each sealed region solvable on its own, as the step's rhs was made (core/sealed_regions.py)
+            sim.sealed.remove_rhs_means(sim, f)
+        predicted = solver.predicted
+        info = solver.solve(
+            PressureSystem(f.types, tuple(f.inv_rho), f.diag, f.extra_diag), f.rhs, f.pressure,
+            tol=SHIFT_TOLERANCE, max_iter=settings.cg_max_iterations, preconditioner=settings.preconditioner,
+            singular=singular, n_fluid=n_fluid, region=r.box if r.enabled else None, same_system=True,
+        )
+        solver.predicted = predicted
+        self.iterations += info.iterations
+        self.solves += 1
+        wp.copy(f.correction_potential, f.pressure)
+        for a in sim.grid.axes:
+            self.shift[a].zero_()
+            sim.launch_lines(gk.subtract_pressure_gradient, r.face_lines[a],
+                             [step, a, f.types, f.pressure, f.inv_rho[a], self.shift[a], self.marks[a]])
+        wp.copy(f.pressure, self.full_pressure)
+
+    def move(self, sim, dt: float):
+        """After g2p: x += dt u_c(x) for the particles the correction's cells hold (a range a thread)."""
+        args = [dt, sim.geometry, face_field(self.shift), particle_arrays(sim.particles)]
+        cuts = split(0, sim.particles.count, sim.parallel.threads)
+        sim.launch_parts(shift_particles, [(b - a, [a, *args]) for a, b in zip(cuts, cuts[1:])])
+        sim.book_outflow()  # moved through an open wall

@@ -179,3 +179,33 @@ def test_moving_positions_adds_one_kernel_and_no_phase(tmp_path):
     assert set(plain.launches) <= set(shifted.launches)
     assert shifted.timer.phases_run == plain.timer.phases_run
     assert shifted.volume_shift.solves == shifted.stats.cg_solves
+
+
+def test_a_checkpoint_from_before_the_setting_resumes_and_refuses_a_change_by_name(tmp_path):
+    # A checkpoint written before [solver].volume_fill and volume_correction_moves existed records
+    # neither, and has no correction potential: it ran as "cell" and "velocities" do, so it resumes
+    # with those (it was refused as "(not set) -> 'velocities'"), and a scene that moves positions
+    # is refused naming the key and the value the checkpoint ran with.
+    import json
+
+    from scenes import tank_2d
+    from warp_mpm_bubbles.io.checkpoint import ResumeRefused
+
+    sim = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc"), "cpu")
+    sim.advance_frame()
+    save_checkpoint(sim, tmp_path / "c.npz")
+    with np.load(tmp_path / "c.npz") as saved:
+        data = {k: saved[k] for k in saved.files if k != "correction_potential"}
+    record = json.loads(str(data["scene"]))
+    for key in ("volume_fill", "volume_correction_moves"):
+        del record["solver"][key]
+    data["scene"] = np.array(json.dumps(record))
+    np.savez(tmp_path / "old.npz", **data)
+    resumed = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc"), "cpu")
+    load_checkpoint(resumed, tmp_path / "old.npz")
+    resumed.advance_frame()
+    sim.advance_frame()
+    assert np.array_equal(resumed.particles.x.numpy(), sim.particles.x.numpy())
+    moving = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc", **POSITIONS), "cpu")
+    with pytest.raises(ResumeRefused, match=r"\[solver\]\.volume_correction_moves: \"velocities\" -> \"positions\""):
+        load_checkpoint(moving, tmp_path / "old.npz")

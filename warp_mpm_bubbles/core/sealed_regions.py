@@ -383,6 +383,8 @@ class SealedRegions:
                 f".velocity, .acceleration, .center)")
 
     def remove_rhs_means(self, sim, fields):
+        """Each sealed region's right-hand side to mean zero, as settle() made the step's: for a
+        second solve of the same system (core/volume_shift.py)."""
         self._remove_means(sim, fields.types, fields.rhs)
 
     def center(self, sim, fields):

@@ -146,6 +146,11 @@ def _show(v) -> str:
     return _NOT_SET if v is _NOT_SET else json.dumps(v)
 
 
+# Settings added since checkpoints were first written, each with the value that gives what older
+# versions did (bit for bit): a checkpoint that does not record one ran with that value.
+ADDED_SETTINGS = {"[solver].volume_fill": "cell", "[solver].volume_correction_moves": "velocities"}
+
+
 def check_same_settings(old: dict | None, scene, path, after: int) -> None:
     """Refuse (ResumeRefused) a resume whose scene differs from the one that wrote the checkpoint
     at `path` (after frame `after`), naming each changed field with its old and new value."""
@@ -153,7 +158,7 @@ def check_same_settings(old: dict | None, scene, path, after: int) -> None:
         raise ResumeRefused(f"cannot resume from {path}: it was written by an older warp_mpm_bubbles that did "
                             f"not record the output settings ([output].fps, format, particle_radius, ...), so a "
                             f"changed one could not be caught; run without --resume (with --overwrite) to start over")
-    a, b = _flatten(old), _flatten(scene_record(scene))
+    a, b = {**ADDED_SETTINGS, **_flatten(old)}, _flatten(scene_record(scene))
     changed = [(k, a.get(k, _NOT_SET), b.get(k, _NOT_SET)) for k in sorted(set(a) | set(b))
                if a.get(k, _NOT_SET) != b.get(k, _NOT_SET)]
     if not changed:
@@ -214,9 +219,9 @@ def _restore(sim, data) -> None:
         if n < particles.capacity:  # beyond the count stays zero (appends rely on it)
             getattr(particles, name)[n:].zero_()
     for name in GRID_CHECKPOINT:
-        if name in data.files and data[name].shape == getattr(sim.fields, name).shape:
+        if name in data.files:
             getattr(sim.fields, name).assign(data[name])
-        else:  # an older checkpoint's, or a field this run does not keep
+        else:  # a field an older checkpoint lacks (correction_potential): zero, its fresh value
             getattr(sim.fields, name).zero_()
     # The core's and the stages' host values by name (an older checkpoint's missing ones keep their fresh value).
     sim.load_state({name[len("host_"):]: data[name] for name in data.files if name.startswith("host_")})

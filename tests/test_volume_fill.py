@@ -114,10 +114,14 @@ def test_the_smoothed_correction_asks_its_rate_of_the_mean_overfill(tmp_path, ta
     assert np.all(np.abs(ratio / share - 1.0) < 0.01), (ratio.min(), ratio.max())
 
 
-def test_an_unknown_volume_fill_is_refused_by_name(tmp_path):
-    with pytest.raises(SceneError, match=r"\[solver\]\.volume_fill"):
+@pytest.mark.parametrize("key,value,words", [
+    ("volume_fill", "mean", r"\[solver\]\.volume_fill"),
+    ("volume_correction_moves", "both", r"\[solver\]\.volume_correction_moves.*'velocities', 'positions'")])
+def test_an_unknown_volume_correction_choice_is_refused_by_name(tmp_path, key, value, words):
+    # the fill, and what the correction moves (tests/test_volume_shift.py)
+    with pytest.raises(SceneError, match=words):
         Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.01), materials={"water": Material("water")},
-              shapes=[Box("water", (0.0, 0.0), (0.1, 0.05))], solver=SolverSettings(volume_fill="mean"),
+              shapes=[Box("water", (0.0, 0.0), (0.1, 0.05))], solver=SolverSettings(**{key: value}),
               output=Output(path=str(tmp_path / "c.usdc"))).validate()
 
 

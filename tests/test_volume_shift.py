@@ -12,7 +12,6 @@ import warp as wp
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.io.checkpoint import load_checkpoint, save_checkpoint
-from warp_mpm_bubbles.scene.checks import SceneError
 from benchmarks.validation import accuracy_cases as ac
 from benchmarks.validation import velocity_jitter as vj
 from scenes import dam_break_2d, squeezed_block_after_one_step
@@ -142,13 +141,6 @@ def test_the_run_summary_says_the_correction_moves_positions():
 
     solver = SolverSettings(volume_relaxation_time=0.01, **SMOOTHED_POSITIONS)
     assert _relaxation(solver, 0.01) == "10 ms (fixed, smoothed fill, moves positions)"
-
-
-def test_an_unknown_volume_correction_moves_is_refused_by_name(tmp_path):
-    with pytest.raises(SceneError, match=r"\[solver\]\.volume_correction_moves.*'velocities', 'positions'"):
-        Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.01), materials={"water": Material("water")},
-              shapes=[Box("water", (0.0, 0.0), (0.1, 0.05))], solver=SolverSettings(volume_correction_moves="both"),
-              output=Output(path=str(tmp_path / "c.usdc"))).validate()
 
 
 def test_the_inviscid_vortex_loses_only_what_the_transfers_lose(tmp_path):

@@ -17,7 +17,7 @@ from .cells import (HOLE_FRACTION, at, cell_divergence, cell_type_at, face_trust
                     neighbour_kinds, unit)
 from .kernel_args import CellPhases, FaceField, PressureRows, Splat, StepParams
 from .lines import line_kernel
-from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_MOVES_POSITIONS, cell_excess, is_hole, smoothed_excess
+from .volume_correction import VOLUME_MOVES_POSITIONS, correction_target, is_hole
 
 wp.set_module_options({"enable_backward": False})
 
@@ -321,12 +321,8 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        c = wp.vec3i(i, j, k)
-        if step.volume_fill == VOLUME_FILL_SMOOTHED:
-            excess = smoothed_excess(cells, splat, two_phase, c, dim, enclosed, inv_dx2, dx, enclosed_cells)
-        else:
-            excess = cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
-        target = volume_rate * excess  # 1/s: at most MAX_VOLUME_SHARE * excess / dt
+        target = correction_target(step.volume_fill, volume_rate, cells, splat, two_phase, wp.vec3i(i, j, k), dim,
+                                   enclosed, inv_dx2, dx, enclosed_cells)
         if shift:  # solved for on its own: the flow's pressure and velocity never carry it
             rows.correction_rhs[i, j, k] = target / dt
         else:

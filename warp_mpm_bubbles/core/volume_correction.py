@@ -136,3 +136,13 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
                     total += w * held
                     weight += w
     return volume_excess(total / weight, compressible_gas_volume(splat, two_phase, c), enclosed, inv_dx2, dx, 0.0)
+
+
+@wp.func
+def correction_target(fill: int, rate: float, cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i, dim: int,
+                      enclosed: int, inv_dx2: float, dx: float, enclosed_cells: wp.array3d(dtype=wp.int32)):
+    """The divergence (1/s) the correction asks of cell c: the rate times its excess by the scene's
+    fill, so at most MAX_VOLUME_SHARE * excess / dt (volume_relaxation_rate)."""
+    if fill == VOLUME_FILL_SMOOTHED:
+        return rate * smoothed_excess(cells, splat, two_phase, c, dim, enclosed, inv_dx2, dx, enclosed_cells)
+    return rate * cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)

@@ -288,15 +288,18 @@ def test_a_head_decays_at_the_set_time_constant(tmp_path):
     # exp(-t / TAU). Stratified lifetimes remove the sampling noise of the exponential draw. Measured
     # at 32, 64, 128 cells (cohorts of 395, 1509, 3911 foam particles): -0.86%, +0.37%, +0.07% of
     # TAU; the error falls with order 1.2 then 2.4 (1.8 overall): burst times are whole steps and
-    # the cohort samples the sequence unevenly, both shrinking with the cell. Bound: 2% (the issue
-    # asks 5%) at each resolution, falling with resolution. A 3% error in the burst rate fails it.
+    # the cohort samples the sequence unevenly, both shrinking with the cell. With the volume
+    # correction moving positions (the default) the cohorts are 392, 1564, 4242 and the errors
+    # -0.40%, +0.44%, -0.13%: which gas becomes foam follows the flow, and between 32 and 64 cells the
+    # cohort's sampling is the larger part. Bound: 2% (the issue asks 5%) at each resolution, the
+    # finest the closest. A 3% error in the burst rate fails it.
     errors = []
     for n in (32, 64, 128):
         tau, size = fitted_decay_time(tmp_path, n)
         errors.append(tau / TAU - 1.0)
         print(f"{n} cells: {size} foam particles, decay time {tau:.5f} s ({errors[-1]:+.2%})")
     assert max(np.abs(errors)) < 0.02
-    assert abs(errors[0]) > abs(errors[1]) > abs(errors[2])
+    assert abs(errors[2]) < min(abs(errors[0]), abs(errors[1]))
 
 
 def test_drainage_off_launches_no_drainage_kernel(tmp_path):

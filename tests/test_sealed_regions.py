@@ -45,20 +45,29 @@ def run_to(sim, t_end):
         sim.advance_to(min(t_end, sim.time + sim.stable_dt()))
 
 
-def test_pocket_in_a_tank_full_to_the_lid_stays_at_rest(tmp_path):
+@pytest.mark.parametrize("moves", ["positions", "velocities"])
+def test_pocket_in_a_tank_full_to_the_lid_stays_at_rest(tmp_path, moves):
     # Nothing moves and nothing enters: the water must stay at rest. With one projection for the
     # whole system the pocket took a share of the main region's mean and the water reached 6 m/s
-    # in the first step (then a CFL step of 1e-7 s). The measure of "at rest": the same tank with
-    # the rod alone (no pocket), which settles from the seeding at a few cm/s.
+    # in the first step (then a CFL step of 1e-7 s). Where the volume correction moves positions
+    # (the default) the seeding's drift moves no velocity: measured 2.6e-7 m/s with the rod alone,
+    # 1.0e-6 with the pocket; bound 1e-5. Moving velocities the tank with the rod alone settles
+    # from the seeding at a few cm/s, and the pocket must add nothing to that.
     speeds = []
     for colliders in (rod_over_glass()[:1], rod_over_glass()):
-        sim = Simulation(tank(tmp_path, 0.3, colliders), "cpu")
+        scene = tank(tmp_path, 0.3, colliders)
+        scene.solver.volume_correction_moves = moves
+        sim = Simulation(scene, "cpu")
         run_to(sim, 3 / 60)
         p = sim.particles_numpy()
         assert np.isfinite(p["velocities"]).all() and sim.stats.cg_unconverged == 0
         speeds.append(np.abs(p["velocities"]).max())
     assert region_counts(sim) == (2, 2)
-    assert speeds[1] < 1.1 * speeds[0] < 0.05
+    print(f"{moves}: fastest particle, rod alone {speeds[0]:.2e} m/s, rod and pocket {speeds[1]:.2e} m/s")
+    if moves == "positions":
+        assert speeds[1] < 1e-5 and speeds[0] < 1e-5
+    else:
+        assert speeds[1] < 1.1 * speeds[0] < 0.05
 
 
 def test_pocket_beside_a_free_surface_is_solved_on_its_own(tmp_path):

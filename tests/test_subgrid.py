@@ -224,10 +224,16 @@ def test_entrainment_seeds_bubbles_in_a_splash_and_none_in_a_resting_tank(tmp_pa
     assert 0.005 < first < 0.009, first
     assert sim.stage("entrainment").seeded >= 10
     # Where the block hit the pool (surface y = 0.03, block x = 0.04 .. 0.06) and where the splash
-    # spreads from there: measured |x - 0.05| <= 0.020, |y - 0.03| <= 0.006 (1.8 cells).
+    # spreads from there: measured |x - 0.05| <= 0.020, |y - 0.03| <= 0.006 (1.8 cells). From 30 ms
+    # the splash's wave climbs the side walls (to y = 0.054-0.066 by 36 ms) and falls back, and
+    # seeds there too: one at the right wall, y = 0.054, at 30.4 ms (the first at a wall moving
+    # velocities comes at 34.4 ms, the left's at y = 0.066).
     seeds = np.concatenate(seeds)
     assert len(seeds) == sim.stage("entrainment").seeded
-    assert np.abs(seeds[:, 0] - 0.05).max() < 0.025 and np.abs(seeds[:, 1] - 0.03).max() < 0.01
+    impact = (np.abs(seeds[:, 0] - 0.05) < 0.025) & (np.abs(seeds[:, 1] - 0.03) < 0.01)
+    at_wall = (np.minimum(seeds[:, 0], L - seeds[:, 0]) < 0.0075) & (seeds[:, 1] > 0.04)
+    print(f"seeds by 30 ms: {impact.sum()} where the block hit, {at_wall.sum()} where the wave climbs a wall")
+    assert impact.sum() >= 10 and at_wall.sum() <= 2 and np.all(impact | at_wall)
     # The run repeats bit for bit (seeds hash the scene seed, the step and the cell).
     n = sim.num_particles
     other = runs[1]

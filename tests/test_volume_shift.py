@@ -17,7 +17,8 @@ from benchmarks.validation import velocity_jitter as vj
 from scenes import dam_break_2d, squeezed_block_after_one_step
 
 wp.config.quiet = True
-POSITIONS = {"volume_correction_moves": "positions"}
+POSITIONS = {"volume_correction_moves": "positions"}  # the default, named where a test measures it
+VELOCITIES = {"volume_correction_moves": "velocities"}
 SMOOTHED_POSITIONS = {"volume_fill": "smoothed", **POSITIONS}
 
 
@@ -25,12 +26,16 @@ SMOOTHED_POSITIONS = {"volume_fill": "smoothed", **POSITIONS}
 @pytest.mark.parametrize("tau,dt,share", [(1 / 300, 1e-3, 0.3), (1e-3, 2e-3, 1.0)], ids=["rate", "capped"])
 def test_the_shift_asks_the_rate_and_the_flow_is_left_alone(tmp_path, fill, tau, dt, share):
     # Water squeezed into 90% of its box side, at rest with no gravity (tests/scenes.py): all that
-    # moves it is the correction. After one step the flow's projected divergence is exactly 0 and no
-    # particle has a velocity; the shift field's divergence in each deep cell is the excess (the
-    # cell's past its band, or the (1 2 1) mean of its block, computed here independently) times
-    # min(dt / tau, 1). Measured: per cell within 0.3% (smoothed) and 1.0% (cell, capped) of it,
-    # means within 0.04%: the shift's solve stops at a relative residual of 1e-2. Bound 2% a cell,
-    # 0.5% on the mean: a 3% error in the rate fails both.
+    # moves it is the correction. The deep cells are enclosed, so their correction moves positions:
+    # after one step the flow's projected divergence there is the pressure solve's residual only, and
+    # the shift field's divergence in each is the excess (the cell's whole excess, or the (1 2 1)
+    # mean of its block, computed here independently) times min(dt / tau, 1). The cells at the
+    # walls are not enclosed: their over-fill, past the band, is asked of the solve and moves
+    # velocities. Measured: per cell within 0.3% (smoothed) and 0.6% (cell, capped) of the rate,
+    # means within 0.01%: the shift's solve stops at a relative residual of 1e-2; the flow's
+    # divergence in the deep cells 2e-7 of the asked. Bounds 2% a cell, 0.5% on the mean (a 3% error
+    # in the rate fails both), and the flow's divergence under 1e-5 of the asked (the pressure
+    # solve's tolerance): the correction asked of the solve there reads 1.
     sim, div, phi = squeezed_block_after_one_step(tmp_path / "c.usdc", dt, volume_relaxation_time=tau,
                                                   volume_fill=fill, **POSITIONS)
     dx = sim.grid.dx
@@ -45,14 +50,13 @@ def test_the_shift_asks_the_rate_and_the_flow_is_left_alone(tmp_path, fill, tau,
                                for a in range(3) for b in range(3)) / 16.0
         excess = mean[deep] - 1.0
     else:
-        excess = phi[deep] - 1.1
+        excess = phi[deep] - 1.0  # enclosed cells moving positions answer their whole excess
     ratio = shift_div[deep] * dt / excess
-    speed = np.abs(sim.particles.v.numpy()).max()
+    flow = np.abs(div[deep] * dt / (share * excess)).max()
     print(f"{fill} fill: shift div dt / excess over {deep.sum()} cells = {ratio.mean():.5f} (min "
-          f"{ratio.min():.5f}, max {ratio.max():.5f}); asked {share}; flow div {np.abs(div[deep]).max():.2e}, "
-          f"fastest particle {speed:.2e} m/s")
-    assert deep.sum() >= 20 and excess.min() > 0.0  # every deep cell over-full past its band
-    assert np.abs(div[deep]).max() == 0.0 and speed == 0.0
+          f"{ratio.min():.5f}, max {ratio.max():.5f}); asked {share}; flow div over the asked {flow:.1e}")
+    assert deep.sum() >= 20 and excess.min() > 0.0  # every deep cell over-full
+    assert flow < 1e-5
     assert abs(ratio.mean() / share - 1.0) < 0.005
     assert np.all(np.abs(ratio / share - 1.0) < 0.02), (ratio.min(), ratio.max())
 
@@ -165,7 +169,7 @@ def test_moving_positions_adds_one_kernel_and_no_phase(tmp_path):
     from test_effects import run_steps
     from scenes import tank_2d
 
-    plain = run_steps(tank_2d(cells=16, out=tmp_path / "a.usdc"))
+    plain = run_steps(tank_2d(cells=16, out=tmp_path / "a.usdc", **VELOCITIES))
     shifted = run_steps(tank_2d(cells=16, out=tmp_path / "b.usdc", **POSITIONS))
     assert set(shifted.launches) - set(plain.launches) == {"shift_particles"}
     assert set(plain.launches) <= set(shifted.launches)
@@ -177,13 +181,13 @@ def test_a_checkpoint_from_before_the_setting_resumes_and_refuses_a_change_by_na
     # A checkpoint written before [solver].volume_fill and volume_correction_moves existed records
     # neither, and has no correction potential: it ran as "cell" and "velocities" do, so it resumes
     # with those (it was refused as "(not set) -> 'velocities'"), and a scene that moves positions
-    # is refused naming the key and the value the checkpoint ran with.
+    # (today's default) is refused naming the key and the value the checkpoint ran with.
     import json
 
     from scenes import tank_2d
     from warp_mpm_bubbles.io.checkpoint import ResumeRefused
 
-    sim = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc"), "cpu")
+    sim = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc", **VELOCITIES), "cpu")
     sim.advance_frame()
     save_checkpoint(sim, tmp_path / "c.npz")
     with np.load(tmp_path / "c.npz") as saved:
@@ -193,11 +197,11 @@ def test_a_checkpoint_from_before_the_setting_resumes_and_refuses_a_change_by_na
         del record["solver"][key]
     data["scene"] = np.array(json.dumps(record))
     np.savez(tmp_path / "old.npz", **data)
-    resumed = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc"), "cpu")
+    resumed = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc", **VELOCITIES), "cpu")
     load_checkpoint(resumed, tmp_path / "old.npz")
     resumed.advance_frame()
     sim.advance_frame()
     assert np.array_equal(resumed.particles.x.numpy(), sim.particles.x.numpy())
-    moving = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc", **POSITIONS), "cpu")
+    moving = Simulation(tank_2d(cells=16, out=tmp_path / "t.usdc"), "cpu")  # today's default
     with pytest.raises(ResumeRefused, match=r"\[solver\]\.volume_correction_moves: \"velocities\" -> \"positions\""):
         load_checkpoint(moving, tmp_path / "old.npz")

@@ -321,9 +321,15 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        target = correction_target(step.volume_fill, volume_rate, cells, splat, two_phase, wp.vec3i(i, j, k), dim,
-                                   enclosed, inv_dx2, dx, enclosed_cells)
-        if shift:  # solved for on its own: the flow's pressure and velocity never carry it
+        # Enclosed cells' correction moves positions where the scene says so; a surface cell's always
+        # asks the solve: a shift there pushed a film's liquid into the compressible gas beside it,
+        # which gives way to the solve's pressure but not to a shift (docs/design.md, #volume-shift).
+        shifted = int(0)
+        if shift and enclosed != 0:
+            shifted = 1
+        target = correction_target(step.volume_fill, shifted, volume_rate, cells, splat, two_phase,
+                                   wp.vec3i(i, j, k), dim, enclosed, inv_dx2, dx, enclosed_cells)
+        if shifted != 0:  # solved for on its own: the flow's pressure and velocity never carry it
             rows.correction_rhs[i, j, k] = target / dt
         else:
             b += target / dt

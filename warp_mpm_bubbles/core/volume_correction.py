@@ -83,15 +83,16 @@ def compressible_gas_volume(splat: Splat, two_phase: int, c: wp.vec3i):
 
 
 @wp.func
-def cell_excess(splat: Splat, two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float, dx: float):
-    """The volume excess the correction acts on in a cell it governs (volume_excess). Where the cell's
-    gas, if any, is incompressible (gas_kv = 0), liquid and gas are one incompressible medium: its
-    total fill phi_l + phi_g, over- and under-filled alike (a liquid cell, or a gas cell, which the
-    correction governs only then). The gas's own over-fill alone spread a bubble well past its
-    particles' volume (nothing closed its under-filled cells); the liquid's alone crushed it to a
-    fraction of it. Beside compressible gas the liquid's over-fill is its own, its under-fill the total."""
+def cell_excess(splat: Splat, two_phase: int, c: wp.vec3i, enclosed: int, inv_dx2: float, dx: float, band: float):
+    """The volume excess the correction acts on in a cell it governs (volume_excess), past `band`.
+    Where the cell's gas, if any, is incompressible (gas_kv = 0), liquid and gas are one
+    incompressible medium: its total fill phi_l + phi_g, over- and under-filled alike (a liquid
+    cell, or a gas cell, which the correction governs only then). The gas's own over-fill alone
+    spread a bubble well past its particles' volume (nothing closed its under-filled cells); the
+    liquid's alone crushed it to a fraction of it. Beside compressible gas the liquid's over-fill is
+    its own, its under-fill the total."""
     return volume_excess(held_volume(splat, two_phase, c), compressible_gas_volume(splat, two_phase, c), enclosed,
-                         inv_dx2, dx, VOLUME_NOISE_BAND)
+                         inv_dx2, dx, band)
 
 
 @wp.func
@@ -115,7 +116,7 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
     resting tank rose, a head's floor pressure read 5% high); and a stream piling into a corner
     needs its own cell's over-fill undone, not a sixteenth of it."""
     if enclosed == 0:
-        return cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
+        return cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx, VOLUME_NOISE_BAND)
     types = cells.types
     cell_volume = dx * dx * dx
     kz = int(0)
@@ -139,10 +140,19 @@ def smoothed_excess(cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i
 
 
 @wp.func
-def correction_target(fill: int, rate: float, cells: CellPhases, splat: Splat, two_phase: int, c: wp.vec3i, dim: int,
-                      enclosed: int, inv_dx2: float, dx: float, enclosed_cells: wp.array3d(dtype=wp.int32)):
+def correction_target(fill: int, shifted: int, rate: float, cells: CellPhases, splat: Splat, two_phase: int,
+                      c: wp.vec3i, dim: int, enclosed: int, inv_dx2: float, dx: float,
+                      enclosed_cells: wp.array3d(dtype=wp.int32)):
     """The divergence (1/s) the correction asks of cell c: the rate times its excess by the scene's
-    fill, so at most MAX_VOLUME_SHARE * excess / dt (volume_relaxation_rate)."""
+    fill, so at most MAX_VOLUME_SHARE * excess / dt (volume_relaxation_rate).
+
+    `shifted`: c is enclosed and its correction moves positions (core/volume_shift.py). Its own
+    fill is then answered whole, with no band: the band keeps the particles' sampling noise out of
+    the velocities, and a shift puts nothing in them; past a band the noise is answered in one-signed
+    kicks that shake a rising bubble (docs/design.md, #volume-shift)."""
     if fill == VOLUME_FILL_SMOOTHED:
         return rate * smoothed_excess(cells, splat, two_phase, c, dim, enclosed, inv_dx2, dx, enclosed_cells)
-    return rate * cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx)
+    band = VOLUME_NOISE_BAND
+    if shifted != 0:
+        band = 0.0
+    return rate * cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx, band)

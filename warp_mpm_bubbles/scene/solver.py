@@ -81,7 +81,7 @@ class SolverSettings:
     volume_relaxation_time: float | None = None  # s: excess undone at excess / this per second; None: 0.01 or the speed's
     volume_correction_speed: float | None = None  # m/s: tau = cell / this; None: the fixed time
     volume_fill: str = "cell"  # the fill the correction reads: each cell's own, or "smoothed" over its neighbours
-    volume_correction_moves: str = "velocities"  # or "positions": a solve of its own displaces the particles
+    volume_correction_moves: str = "positions"  # or "positions": a solve of its own displaces the particles
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
     volume_correction: float | None = None  # removed: refused with the conversion (see _validate)

@@ -51,7 +51,7 @@ VARIANTS = {  # label -> SolverSettings fields changed from the production defau
     "max_dt 2 ms": {"max_dt": 2e-3}, "liquid_velocity shared": {"liquid_velocity": "shared"},
     "gas_films passive": {"gas_films": "passive"}, "volume correction off": {"volume_relaxation_time": 0.0},
     "volume_fill smoothed": {"volume_fill": "smoothed"},
-    "volume_correction_moves positions": {"volume_correction_moves": "positions"},
+    "volume_correction_moves velocities": {"volume_correction_moves": "velocities"},  # the default before
     "smoothed and positions": {"volume_fill": "smoothed", "volume_correction_moves": "positions"},
 }
 T_END, BIN, WINDOW, FROM = 1.5, 0.025, 0.15, 0.3  # s

@@ -314,8 +314,8 @@ def generate(index: int, out_path: str) -> tuple[str, str | None]:
         scene["solver"]["max_steps_per_frame"] = int(r.integers(1, 5))
     if np.random.default_rng([20261207, index, 2]).random() < 0.25:  # its own draw: the others stay
         scene["solver"]["volume_fill"] = "smoothed"
-    if np.random.default_rng([20261207, index, 3]).random() < 0.25:  # its own draw too
-        scene["solver"]["volume_correction_moves"] = "positions"
+    if np.random.default_rng([20261207, index, 3]).random() < 0.25:  # its own draw too: the default before
+        scene["solver"]["volume_correction_moves"] = "velocities"
     scene["output"] = {"path": out_path, "fps": float(r.choice([30.0, 60.0, 120.0])),
                        "frames": int(r.integers(2, 4)),
                        "format": str(r.choice(["instancer", "instancer", "points", "both"]))}

@@ -3,6 +3,8 @@
 import csv
 import math
 
+import pytest
+
 from benchmarks.validation import accuracy_vs_time
 from benchmarks.validation.accuracy_cases import R0
 
@@ -53,3 +55,15 @@ def test_presets_apply_through_with_quality_and_refine_the_grid(tmp_path):
     assert math.isclose(scene.domain.dx, R0 / 16)
     production = study.build_scene(case, {"quality": "production", "resolution": 8, "cfl": 1.0}, tmp_path)
     assert production.validate().solver.refine == 1 and production.solver.cfl == 1.0
+
+
+def test_only_into_an_empty_folder_starts_a_new_file_and_render_only_there_is_refused(tmp_path, capsys):
+    # --only merged into the saved run and raised FileNotFoundError where none was saved yet.
+    study = accuracy_vs_time
+    with pytest.raises(SystemExit) as refused:
+        study.main(["--quick", "--cases", "laplace", "--out", str(tmp_path), "--render-only"])
+    assert refused.value.code == 2 and "no saved run" in capsys.readouterr().err
+    assert study.main(["--quick", "--cases", "laplace", "--out", str(tmp_path), "--no-plot", "--only", "presets"]) == 0
+    with open(tmp_path / "accuracy_vs_time" / "cpu_quick.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and {r["setting"] for r in rows} == {"quality", "seed"} and {r["batch"] for r in rows} == {"0"}

@@ -303,11 +303,15 @@ def main(argv=None) -> int:
     stem = harness.result_stem("accuracy_vs_time", args)
     stem.parent.mkdir(parents=True, exist_ok=True)
     if args.render_only:
+        if not stem.with_suffix(".json").exists():
+            ap.error(f"--render-only: no saved run at {stem.with_suffix('.json')}: run the study first")
         meta, rows = load_saved(stem)
         render(stem, meta, rows, args)
         return 0
     mode = "quick" if args.quick else "full"
-    saved_meta, saved_rows = load_saved(stem) if only else ({"batches": []}, [])
+    saved_meta, saved_rows = ({"batches": [], "mode": mode}, [])
+    if only and stem.with_suffix(".json").exists():  # merged into the saved run; else a new file of these sweeps
+        saved_meta, saved_rows = load_saved(stem)
     if only and saved_meta.get("mode") != mode:
         ap.error(f"--only merges into the saved {saved_meta.get('mode')} run: run it in that mode")
 

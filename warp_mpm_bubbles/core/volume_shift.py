@@ -1,18 +1,24 @@
-"""The volume correction that moves positions: `[solver].volume_correction_moves = "positions"`.
+"""The volume correction that moves positions: `[solver].volume_correction_moves = "positions"`, the
+default.
 
-The default correction asks each over- or under-filled liquid cell for a divergence d, and asks it of
+Moving velocities, the correction asks each over- or under-filled liquid cell for a divergence d of
 the step's pressure solve (core/volume_correction.py). The particles then carry that divergence in
 their velocities, and the next step's u* still holds part of it: the solve undoes that part and asks
-the new d, so the pressure it returns holds a term of about rho (d_old - d_new) L^2 / dt. With the
-cell fill's dead band most cells have d = 0 and the term is small. With the smoothed fill every
-enclosed cell has some d, and a drop's Laplace jump swung by +-12% at 4 cells per radius.
+the new d, so the pressure it returns holds a term of about rho (d_old - d_new) L^2 / dt, and the
+velocities the noise the correction answers. A noise band keeps most cells at d = 0, but what it lets
+through it answers in one-signed kicks, which make a rising bubble shiver.
 
-This mode keeps the correction out of the flow altogether:
-- the step's solve sees the flow's right-hand side only, so its pressure and velocity are the flow's;
+This mode keeps the correction out of the flow in the cells enclosed in liquid (or gas of fixed
+density), where the particles' sampling is all that makes a cell over- or under-full:
+- the step's solve sees the flow's right-hand side only there, so its pressure and velocity are the
+  flow's; each such cell's whole excess is asked, with no band (volume_correction.correction_target);
 - the correction's own system, A phi = d / dt with the same operator A, gives a displacement field
   u_c = -dt / rho grad phi on the faces, as the projection would, with div u_c = d;
 - after g2p each particle of the liquid (and of a gas of fixed density, which the correction's cells
   also hold) moves by dt u_c at its position; its velocity is not touched.
+A cell at a free surface, a wall or compressible gas keeps asking the step's solve, past the band: a
+shift there pushed a film's liquid into the compressible gas beside it, which gives way to the
+solve's pressure but not to a shift.
 
 phi is a correction to a correction, so its solve stops at SHIFT_TOLERANCE: a 1% error in a
 displacement of about excess dx dt / tau (a thousandth of a cell a step at rest) is far below the

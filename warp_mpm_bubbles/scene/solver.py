@@ -47,16 +47,18 @@ class SolverSettings:
             liquid, under-fill) beyond the seeding noise is undone at excess / this per second, but
             never more than all of it in one step; 0 turns the correction off.
         volume_fill: "cell" (default) | "smoothed": the fill the correction reads. "cell": each
-            cell's own, its excess past a noise band of 0.1. "smoothed": a weighted mean over the
-            cell's neighbours, its whole excess: a rising bubble's speed then jitters a twentieth as
-            much or less, but a drop a few cells across reads its Laplace pressure less well
-            (docs/design.md, #volume-correction).
-        volume_correction_moves: "velocities" (default) | "positions": what the correction moves.
-            "velocities": its divergence is asked of the pressure solve, so the particles carry it
-            and the pressure holds its part. "positions": it is solved for on its own (a second,
-            loosely converged solve a step) and only displaces the particles, so the flow's pressure
-            and velocity are the flow's alone; with the smoothed fill a drop's Laplace pressure no
-            longer swings (docs/design.md, #volume-correction).
+            cell's own: its whole excess in an enclosed cell that moves positions, elsewhere its
+            excess past a noise band of 0.1. "smoothed": in an enclosed cell a weighted mean over the
+            cell's neighbours, its whole excess: moving velocities, a rising bubble's speed then
+            jitters a twentieth as much, but a drop a few cells across reads its Laplace pressure
+            less well (docs/design.md, #volume-correction).
+        volume_correction_moves: "positions" (default) | "velocities": what the correction moves.
+            "positions": in cells enclosed in liquid it is solved for on its own (a second, loosely
+            converged solve a step) and only displaces the particles, so the flow's pressure and
+            velocity are the flow's alone and a rising bubble does not shiver; cells at a surface
+            ask the pressure solve. "velocities": every cell's divergence is asked of the pressure
+            solve, so the particles carry it and the pressure holds its part (the default before
+            2026-12-07: a rising bubble's speed jitters by 1-2%) (docs/design.md, #volume-shift).
         volume_correction_speed: m/s (0.01..10; None, the default: the fixed time above): makes the
             relaxation time the simulated cell over it, so the volume drift converges with the grid,
             at the price of correction speeds that do not (docs/design.md, #volume-correction).
@@ -81,7 +83,7 @@ class SolverSettings:
     volume_relaxation_time: float | None = None  # s: excess undone at excess / this per second; None: 0.01 or the speed's
     volume_correction_speed: float | None = None  # m/s: tau = cell / this; None: the fixed time
     volume_fill: str = "cell"  # the fill the correction reads: each cell's own, or "smoothed" over its neighbours
-    volume_correction_moves: str = "positions"  # or "positions": a solve of its own displaces the particles
+    volume_correction_moves: str = "positions"  # a solve of its own displaces the particles; or "velocities"
     seed: int = 0
     max_steps_per_frame: int = MAX_STEPS_PER_FRAME  # the guard against a frame that never ends
     volume_correction: float | None = None  # removed: refused with the conversion (see _validate)

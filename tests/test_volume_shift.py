@@ -31,7 +31,7 @@ def test_the_shift_asks_the_rate_and_the_flow_is_left_alone(tmp_path, fill, tau,
     # the shift field's divergence in each is the excess (the cell's whole excess, or the (1 2 1)
     # mean of its block, computed here independently) times min(dt / tau, 1). The cells at the
     # walls are not enclosed: their over-fill, past the band, is asked of the solve and moves
-    # velocities. Measured: per cell within 0.3% (smoothed) and 0.6% (cell, capped) of the rate,
+    # velocities. Measured: per cell within 0.3% (smoothed) and 0.6% (cell) of the rate,
     # means within 0.01%: the shift's solve stops at a relative residual of 1e-2; the flow's
     # divergence in the deep cells 2e-7 of the asked. Bounds 2% a cell, 0.5% on the mean (a 3% error
     # in the rate fails both), and the flow's divergence under 1e-5 of the asked (the pressure

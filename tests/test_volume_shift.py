@@ -210,7 +210,7 @@ def test_moving_positions_adds_one_kernel_and_no_phase(tmp_path):
 
     plain = run_steps(tank_2d(cells=16, out=tmp_path / "a.usdc", **VELOCITIES))
     shifted = run_steps(tank_2d(cells=16, out=tmp_path / "b.usdc", **POSITIONS))
-    assert set(shifted.launches) - set(plain.launches) == {"shift_particles"}
+    assert set(shifted.launches) - set(plain.launches) == {"shift_particles_2d"}
     assert set(plain.launches) <= set(shifted.launches)
     assert shifted.timer.phases_run == plain.timer.phases_run
     assert shifted.volume_shift.solves == shifted.stats.cg_solves

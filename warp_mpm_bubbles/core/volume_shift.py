@@ -34,7 +34,7 @@ from . import grid_kernels as gk
 from .kernel_args import face_field, particle_arrays
 from .pressure import PressureSystem
 from .threads import split
-from .transfer_kernels import shift_particles
+from .transfer_kernels import SHIFT
 
 SHIFT_TOLERANCE = 1.0e-2  # the correction's solve: relative residual (see the module docstring)
 
@@ -81,5 +81,5 @@ class VolumeShift:
         """After g2p: x += dt u_c(x) for the particles the correction's cells hold (a range a thread)."""
         args = [dt, sim.geometry, face_field(self.shift), particle_arrays(sim.particles)]
         cuts = split(0, sim.particles.count, sim.parallel.threads)
-        sim.launch_parts(shift_particles, [(b - a, [a, *args]) for a, b in zip(cuts, cuts[1:])])
+        sim.launch_parts(SHIFT[sim.grid.dim], [(b - a, [a, *args]) for a, b in zip(cuts, cuts[1:])])
         sim.book_outflow()  # moved through an open wall

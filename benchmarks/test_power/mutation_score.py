@@ -121,8 +121,9 @@ MUTATIONS = [
      "theta = (phi_fluid - 0.4) / (phi_fluid - phi_empty)", [HYDROSTATIC, TANK]),
     ("divergence_z_x0.95", GK, "div += vel_w[i, j, k + 1] - vel_w[i, j, k]\n    return div",
      "div += 0.95 * (vel_w[i, j, k + 1] - vel_w[i, j, k])\n    return div", [DIV3D, VOL3D]),
-    ("volume_correction_x2", GK, "target = volume_rate * cell_excess(",
-     "target = 2.0 * volume_rate * cell_excess(", [VOLCORR, VOL3D]),
+    ("volume_correction_x2", "core/volume_correction.py", "return rate * cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx, band)",
+     "return 2.0 * rate * cell_excess(splat, two_phase, c, enclosed, inv_dx2, dx, band)",
+     [VOLCORR, VOL3D, "tests/test_volume_shift.py::test_the_shift_asks_the_rate_and_the_flow_is_left_alone"]),
     ("pressure_gradient_x0.97", GK, "vel[i, j, k] = vel[i, j, k] - dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx",
      "vel[i, j, k] = vel[i, j, k] - 0.97 * dt * inv_rho[i, j, k] * (p_hi - p_lo) / dx", [DIV3D, HYDROSTATIC]),
     # --- interface (sharp liquid-gas faces, Wood mixture)

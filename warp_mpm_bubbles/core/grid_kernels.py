@@ -321,9 +321,7 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        # Enclosed cells' correction moves positions where the scene says so; a surface cell's always
-        # asks the solve: a shift there pushed a film's liquid into the compressible gas beside it,
-        # which gives way to the solve's pressure but not to a shift (docs/design.md, #volume-shift).
+        # only enclosed cells shift: at a surface the solve's pressure is what gas gives way to (#volume-shift)
         shifted = int(0)
         if shift and enclosed != 0:
             shifted = 1

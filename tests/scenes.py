@@ -4,22 +4,25 @@
 from benchmarks.cases import WATER, dam_break_2d, tank_2d  # noqa: F401  (re-exported for the tests)
 
 
-def squeezed_block_after_one_step(out, dt: float, **solver):
+def squeezed_block_after_one_step(out, dt: float, block=(0.0, 0.1), squeeze: float = 0.9, **solver):
     """Water filling a 2D box (16 cells a side, no gravity) squeezed into 90% of its side, so each
     cell is about 1.23x over-full, then one step of dt: (sim, div, phi), the faces' projected
     divergence per cell and the cells' rest-volume fractions. The volume correction's request is all
-    that moves this water (the tests of its rate, tests/test_energy.py and tests/test_volume_fill.py)."""
+    that moves this water (the tests of its rate, tests/test_energy.py and tests/test_volume_fill.py).
+    `block` (lo, hi along both axes) and `squeeze` (about the box's middle) place a smaller block in
+    open air instead (tests/test_volume_shift.py's surface cells)."""
     import warp as wp
 
     from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings
     from warp_mpm_bubbles.core.simulation import Simulation
 
+    lo, hi = block
     scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16, gravity=(0.0, 0.0)),
-                  materials={"water": Material("water")}, shapes=[Box("water", (0.0, 0.0), (0.1, 0.1))],
+                  materials={"water": Material("water")}, shapes=[Box("water", (lo, lo), (hi, hi))],
                   solver=SolverSettings(**solver), output=Output(path=str(out)))
     sim = Simulation(scene, "cpu")
     x = sim.particles.x.numpy()
-    x[:, :2] = 0.05 + 0.9 * (x[:, :2] - 0.05)
+    x[:, :2] = 0.05 + squeeze * (x[:, :2] - 0.05)
     sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
     sim.step(dt)
     dx = sim.grid.dx

@@ -73,18 +73,9 @@ def test_cells_at_a_surface_ask_the_solve_and_are_not_shifted(tmp_path):
     from warp_mpm_bubbles.core.grid import EMPTY, FLUID
 
     dt, share = 1e-3, 0.3
-    scene = Scene(domain=Domain(size=(0.1, 0.1), cell_size=0.1 / 16, gravity=(0.0, 0.0)),
-                  materials={"water": Material("water")}, shapes=[Box("water", (0.025, 0.025), (0.075, 0.075))],
-                  solver=SolverSettings(volume_relaxation_time=dt / share), output=Output(path=str(tmp_path / "s.usdc")))
-    sim = Simulation(scene, "cpu")
-    x = sim.particles.x.numpy()
-    x[:, :2] = 0.05 + 0.75 * (x[:, :2] - 0.05)  # its sides on cell faces, 3 cells from the middle
-    sim.particles.x = wp.array(x, dtype=wp.vec3, device=sim.device)
-    sim.step(dt)
-    dx = sim.grid.dx
-    u, v = sim.fields.vel[0].numpy(), sim.fields.vel[1].numpy()
-    div = ((u[1:] - u[:-1]) + (v[:, 1:] - v[:, :-1]))[:, :, 0] / dx
-    phi = sim.fields.liq_volume.numpy()[:, :, 0] / dx**3
+    # its sides on cell faces, 3 cells from the middle
+    sim, div, phi = squeezed_block_after_one_step(tmp_path / "s.usdc", dt, block=(0.025, 0.075), squeeze=0.75,
+                                                  volume_relaxation_time=dt / share)
     types = sim.fields.types.numpy()[:, :, 0]
     empty = np.pad(types == EMPTY, 1)
     beside_empty = empty[:-2, 1:-1] | empty[2:, 1:-1] | empty[1:-1, :-2] | empty[1:-1, 2:]

@@ -169,7 +169,7 @@ def test_discovery_finds_every_module_whose_source_defines_kernels(package_build
     # kernels in modules of their own (module="unique": the transfers, one per dimension, so that a
     # scene compiles only its own) are compiled with the module that defines them
     transfers = package_build["modules"][f"{PACKAGE}.core.transfer_kernels"]
-    for kernel in ("p2g_2d", "p2g_3d", "g2p_advect_2d", "g2p_advect_3d", "shift_particles_2d", "shift_particles_3d"):
+    for kernel in ("p2g_2d", "p2g_3d", "g2p_advect_2d", "g2p_advect_3d"):
         assert any(name.startswith(kernel + "_") for name in transfers), sorted(transfers)
 
 

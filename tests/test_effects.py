@@ -20,8 +20,7 @@ wp.config.quiet = True
 CORE_KERNELS = {"p2g_2d", "momentum_to_velocity", "classify_cells", "zero_solid_faces", "face_inverse_density",
                 "pressure_diagonal_and_rhs", "subtract_pressure_gradient", "extrapolate_velocity",
                 "enforce_walls", "g2p_advect_2d", "split_pairs",
-                "covered_top", "count_covered_empty", "clear_holes",  # core/voids.py: holes in the liquid
-                "shift_particles_2d"}  # core/volume_shift.py: the volume correction moves positions
+                "covered_top", "count_covered_empty", "clear_holes"}  # core/voids.py: holes in the liquid
 CORE_STAGES = ["p2g", "grid", "pressure", "extend", "g2p"]
 # core/voids.py's search, launched only on steps where some EMPTY cell has fluid or solid above it
 VOID_SEARCH = {"mark_open_air", "sweep_open_air", "count_unreached_empty"}

@@ -74,7 +74,7 @@ def floor_rise(tmp_path, columns):
 
 def test_a_resting_head_raises_the_floor_pressure_by_its_weight(tmp_path):
     # A closed tank at rest with a head of mass m on it: the floor's pressure rises by m g / A.
-    # Measured at 16 / 32 / 64 columns: +11.2 / +3.0 / +1.4% (the same tank without the head reads
+    # Measured at 16 / 32 / 64 columns: +11.0 / +3.6 / +1.7% (the same tank without the head reads
     # the water's own to 0.01 Pa at 32). Moving velocities the correction's part of the pressure
     # read +21.6 / +0.16 / +3.6%: the 0.16% at 32 was a crossing, not convergence. Bounds: at 32
     # between 0 and 4.5%, and under 0.4 of the error at 16.

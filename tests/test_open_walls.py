@@ -23,7 +23,8 @@ def torricelli():
 
 def test_a_draining_tank_jets_at_torricelli_speed_converging(torricelli):
     # Measured (2026-12-07): Cv 0.8226 / 0.9203 / 0.9637 at 2 / 4 / 8 cells across the slot; the
-    # errors against Torricelli (Cv = 1) shrink at order 1.15 and 1.15 (16 cells: 0.9899, order 1.85;
+    # errors against Torricelli (Cv = 1) shrink at order 1.15 and 1.15 (16 cells: 0.9989, and 1.024 at
+    # 32: the jet outruns Torricelli on fine grids, docs/design.md#limitations;
     # python -m benchmarks.validation.torricelli). The finest Cv is deterministic on the CPU: pinned to 0.8%
     # either side, which a 3% error in gravity (1.4% in Cv) leaves.
     _, runs = torricelli

@@ -35,6 +35,16 @@ def test_validate_prints_the_table_and_passes(capsys):
     assert "2 of 2 passed" in out
 
 
+def test_the_quick_set_passes_with_the_defaults(capsys):
+    # What a user runs first after installing (the README's table): every quick case within its
+    # bound with the default settings, so a change to a default that moves one past it fails here.
+    assert cli.main(["validate"]) == 0, capsys.readouterr().out
+    out = capsys.readouterr().out
+    rows = _rows(out)
+    quick = [name for name, (_, in_quick, _) in validation_cases.CASES.items() if in_quick]
+    assert len(rows) >= len(quick) and all(cells[5] == "pass" for cells in rows.values()), out
+
+
 def test_a_gravity_three_percent_off_fails_validate(capsys, monkeypatch):
     class WrongGravity(Simulation):  # the simulator's gravity 3% too strong; the references keep g
         def __init__(self, scene, *a, **k):

@@ -488,8 +488,6 @@ class Simulation:
 
     def _phase_g2p(self, dt: float, again: bool):
         self._grid_to_particles(dt)
-        if self.volume_shift:
-            self.volume_shift.move(self, dt)
 
     def _grid_to_particles(self, dt: float):
         f, p = self.fields, self.particles
@@ -497,7 +495,9 @@ class Simulation:
         # the liquid) follow the interpolated divergence.
         gas_J_from_cells = int(self.has_gas and self.interface == INTERFACE_SHARP)
         f.max_speed.zero_()
-        args = [self.geometry, face_field(f.vel), face_field(f.gas_vel or f.vel), particle_arrays(p)]
+        vs = self.volume_shift  # its displacement moves positions in the same gather (core/volume_shift.py)
+        shift = (1, face_field(vs.shift)) if vs else (0, face_field(f.vel))
+        args = [self.geometry, face_field(f.vel), face_field(f.gas_vel or f.vel), *shift, particle_arrays(p)]
         if self.parallel.threads == 1:
             self.launch(G2P[self.grid.dim], p.count, [0, dt, gas_J_from_cells, 0, *args, f.max_speed])
         else:

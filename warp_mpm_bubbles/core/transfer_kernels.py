@@ -479,11 +479,36 @@ def _gather_func(dim: int):
                                 wp.vec3(gw[1], gw[2], gw[3]))
         return wp.vec3(gu[0], gv[0], gw[0]), C
 
-    return gather_mac
+    @wp.func
+    def sample_separable(vel: wp.array3d(dtype=float), s: Stencil):
+        """One component's value at the particle: gather_separable without the gradient, whose
+        work a field that moves only positions does not need."""
+        value = float(0.0)
+        for i in range(3):
+            ty = float(0.0)
+            for j in range(3):
+                row = value_row(vel, s.base, i, j)
+                t = float(0.0)
+                for k in range(wp.static(NK)):
+                    t += s.wz[k] * row[k]
+                ty += s.wy[j] * t
+            value += s.wx[i] * ty
+        return value
+
+    @wp.func
+    def sample_mac(vel: FaceField, s: MacStencil):
+        """A face field's value at the particle, with the shared stencils."""
+        u = wp.vec3(sample_separable(vel.u, component_stencil(s, 0)),
+                    sample_separable(vel.v, component_stencil(s, 1)), 0.0)
+        if wp.static(dim == 3):
+            u[2] = sample_separable(vel.w, component_stencil(s, 2))
+        return u
+
+    return gather_mac, sample_mac
 
 
 def _g2p_kernel(dim: int):
-    gather_mac = _gather_func(dim)
+    gather_mac, sample_mac = _gather_func(dim)
 
     @wp.kernel(enable_backward=False, name=f"g2p_advect_{dim}d", module="unique")
     def g2p_fused(
@@ -494,13 +519,17 @@ def _g2p_kernel(dim: int):
         geo: GridGeometry,
         vel: FaceField,
         gas_vel: FaceField,
+        shifting: int,
+        shift: FaceField,
         particles: Particles,
         max_speed: wp.array(dtype=float),
     ):
         """Gather velocity and affine matrix, update J, move the particle and keep it in the domain
         (grid-resolved phases only: the effects move foam and sub-grid bubbles). Particles from
         `first` on (core/threads.py: the parts of one g2p); their fastest speed goes to
-        max_speed[slot]. The gas gathers gas_vel (the liquid's field when the phases share one)."""
+        max_speed[slot]. The gas gathers gas_vel (the liquid's field when the phases share one).
+        shifting: the volume correction moves positions (core/volume_shift.py): liquid and gas of
+        fixed density also move by dt shift(x), sampled with the same stencil; velocities keep none of it."""
         x = particles.x
         v = particles.v
         J = particles.J
@@ -529,6 +558,8 @@ def _g2p_kernel(dim: int):
         # Advect, then clamp into the domain; a clamped particle loses the velocity that pushed it out.
         # Through an open wall it leaves (booked and retired by book_outflow), or flies (AIRBORNE).
         moved = xp + dt * vp
+        if shifting != 0 and (phase[p] == PHASE_LIQUID or particles.gas_law[p] == 0):  # compressible gas: not asked
+            moved += dt * sample_mac(shift, s)  # the volume correction's displacement, at the start position
         code = open_wall_exit(moved, geo, phase[p])
         xn, vn = keep_in_domain(moved, vp, code, geo)
         if code == AIRBORNE:
@@ -551,50 +582,3 @@ def fastest_of_parts(parts: wp.array(dtype=float), n: int, stride: int, max_spee
 
 P2G = {2: _p2g_kernel(2), 3: _p2g_kernel(3)}
 G2P = {2: _g2p_kernel(2), 3: _g2p_kernel(3)}
-
-
-def _shift_kernel(dim: int):
-    NK = 3 if dim == 3 else 1
-
-    @wp.func
-    def sample_separable(vel: wp.array3d(dtype=float), s: Stencil):
-        """One component's value at the particle (gather_separable's value without its gradient):
-        rows of three nodes read at once, the weights applied one axis at a time."""
-        value = float(0.0)
-        for i in range(3):
-            ty = float(0.0)
-            for j in range(3):
-                row = value_row(vel, s.base, i, j)
-                t = float(0.0)
-                for k in range(wp.static(NK)):
-                    t += s.wz[k] * row[k]
-                ty += s.wy[j] * t
-            value += s.wx[i] * ty
-        return value
-
-    @wp.kernel(enable_backward=False, name=f"shift_particles_{dim}d", module="unique")
-    def shift_particles(first: int, dt: float, geo: GridGeometry, shift: FaceField, particles: Particles):
-        """x += dt u_c(x), the volume correction's displacement (core/volume_shift.py), for active
-        liquid and gas of fixed density (compressible gas cells are asked nothing). Through an open
-        wall a particle leaves or flies, as in g2p; its velocity is kept. Particles first + tid: one
-        range a CPU thread. g2p's shared stencil and row reads: a node at a time took 1.5x as long."""
-        p = first + wp.tid()
-        ph = particles.phase[p]
-        if particles.active[p] != ACTIVE or not (ph == PHASE_LIQUID or (ph == PHASE_GAS and particles.gas_law[p] == 0)):
-            return
-        xp = clamp_to_domain(particles.x[p], geo.domain_hi, geo.dx, wp.static(dim))
-        s = mac_stencil(xp, geo.origin, 1.0 / geo.dx, wp.static(dim))
-        u = wp.vec3(sample_separable(shift.u, component_stencil(s, 0)),
-                    sample_separable(shift.v, component_stencil(s, 1)), 0.0)
-        if wp.static(dim == 3):
-            u[2] = sample_separable(shift.w, component_stencil(s, 2))
-        moved = xp + dt * u
-        code = open_wall_exit(moved, geo, ph)
-        xn, kept = keep_in_domain(moved, particles.v[p], code, geo)
-        particles.active[p] = code
-        particles.x[p] = xn
-
-    return shift_particles
-
-
-SHIFT = {2: _shift_kernel(2), 3: _shift_kernel(3)}

@@ -55,12 +55,15 @@ def section(title, reference, command, rel, table, note="") -> str:
 
 
 def torricelli() -> str:
+    from benchmarks.validation.torricelli import TESTED_CV, TESTED_DX
+
     d = _load("torricelli/cpu.json")
     rows = []
+    low, high = TESTED_CV
     for c in d["cases"]:
-        tested = math.isclose(c["dx"], 0.005)
-        bound = "0.955 to 0.972 (tests/test_open_walls.py)" if tested else "below 1"
-        ok = 0.955 < c["cv"] < 0.972 if tested else c["cv"] < 1.0
+        tested = math.isclose(c["dx"], TESTED_DX)
+        bound = f"{low} to {high} (tests/test_open_walls.py)" if tested else "below 1"
+        ok = low < c["cv"] < high if tested else c["cv"] < 1.0
         rows.append([f"{1000 * c['dx']:g} mm", f"{c['cv']:.4f}", _pct(c["cv"] - 1.0), bound, "yes" if ok else "NO"])
     limit = d.get("cv", {}).get("limit")
     note = f"Richardson extrapolation of the finest three: Cv = {limit:.4f}." if limit and math.isfinite(limit) else ""

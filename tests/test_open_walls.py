@@ -22,34 +22,33 @@ def torricelli():
 
 
 def test_a_draining_tank_jets_at_torricelli_speed_converging(torricelli):
-    # Measured (2026-12-07, the correction moving positions): Cv 0.8103 / 0.9198 / 0.9639 at 2 / 4 / 8
-    # cells across the slot; the errors against Torricelli (Cv = 1) shrink at order 1.24 and 1.15
-    # (moving velocities 0.8226 / 0.9203 / 0.9637; 16 cells: 0.9989, and 1.024 at
-    # 32: the narrow tank's slowing drain reads past the steady law there, docs/design.md#limitations;
-    # python -m benchmarks.validation.torricelli). The finest Cv is deterministic on the CPU: pinned to 0.8%
-    # either side, which a 3% error in gravity (1.4% in Cv) leaves.
+    # Measured (2026-12-07), the tank 0.8 m wide so that its drain is nearly steady: Cv 0.7790 /
+    # 0.8667 / 0.9099 at 2 / 4 / 8 cells across the slot; the errors against Torricelli (Cv = 1)
+    # shrink at order 0.73 and 0.56 (16 cells: 0.9402, order 0.59; extrapolated 1.01: python -m
+    # benchmarks.validation.torricelli). A tank 0.2 m wide drains four times as fast, and its slowing
+    # drain carried the jet past the steady law on fine grids (1.024 at 32 cells). Bounds: orders
+    # 0.4-1.0; the finest Cv, deterministic on the CPU, pinned to about 0.8% either side (TESTED_CV),
+    # which a 3% error in gravity leaves (0.9238).
     _, runs = torricelli
     cv = [r["cv"] for r in runs]
     print("Cv", [f"{c:.4f}" for c in cv], "Cd", [f"{r['cd']:.4f}" for r in runs])
     errors = [1.0 - c for c in cv]
     assert all(e > 0.0 for e in errors), cv  # the jet never outruns Torricelli
     orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
-    assert all(0.8 < q < 2.5 for q in orders), (cv, orders)
-    assert 0.955 < cv[2] < 0.972, cv
-    # The discharge coefficient converges too (0.7204 / 0.8353 / 0.8521, differences shrinking by
-    # 7x; moving velocities 0.7045 / 0.7958 / 0.8267): between a thin plate's 0.61 and a short tube's
-    # 0.8, as the plate is. At 16 cells it reads 0.7835 (moving velocities 0.8294), not understood
-    # yet (docs/design.md#limitations).
+    assert all(0.4 < q < 1.0 for q in orders), (cv, orders)
+    assert torricelli_study.TESTED_CV[0] < cv[2] < torricelli_study.TESTED_CV[1], cv
+    # The discharge coefficient: 0.6821 / 0.7825 / 0.7678 (16 cells: 0.7413), between a thin plate's
+    # 0.61 and a short tube's 0.8, as the plate is, but not yet converged: it turns after 4 cells.
     cd = [r["cd"] for r in runs]
+    assert all(0.61 < c < 0.8 for c in cd), cd
     assert abs(cd[2] - cd[1]) < 0.5 * abs(cd[1] - cd[0]), cd
-    assert 0.78 < cd[2] < 0.88, cd
 
 
 def test_a_draining_tank_books_every_kilogram(torricelli):
     _, runs = torricelli
     for r in runs:
         b = r["budget"]
-        assert b["left"] > 0.2 * b["added"], b  # about a third has drained by 0.25 s
+        assert 0.05 * b["added"] < b["left"] < 0.12 * b["added"], b  # 7-9% of the wide tank drains by 0.25 s
         assert abs(b["error"]) <= 1e-12 * b["added"], b  # added = held + left, to the sums' rounding
 
 

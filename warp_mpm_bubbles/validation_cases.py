@@ -95,16 +95,17 @@ def laplace_drop(work: Path, device: str, fine: bool = False) -> list[Row]:
 
 
 def torricelli(work: Path, device: str, fine: bool = False) -> list[Row]:
-    """A 2D tank draining through a 4 cm slot in a plate into open air: the jet's speed against
-    Torricelli's sqrt(2 g h) (Bernoulli along the free jet), as the velocity coefficient Cv over the
-    jet's particles 4-6 cm below the plate, t = 0.15-0.25 s. At 5 mm cells Cv is 0.964 (0.920, 0.964
-    at 10, 5 mm); bound 0.955-0.972. The --full bound (0.980-0.995) was set from 0.990 at 2.5 mm with
-    the correction moving velocities; the default reads 0.999 there and 1.024 at 1.25 mm, which
-    docs/design.md#limitations states as a known failure."""
+    """A 2D tank 0.8 m wide draining through a 4 cm slot in a plate into open air: the jet's speed
+    against Torricelli's sqrt(2 g h) (Bernoulli along the free jet), as the velocity coefficient Cv
+    over the jet's particles 4-6 cm below the plate, t = 0.15-0.25 s. Wide, so that the drain is
+    nearly steady, as the law assumes (benchmarks/validation/torricelli.py, which this tank is).
+    Cv 0.779 / 0.867 / 0.910 / 0.940 at 20 / 10 / 5 / 2.5 mm: below 1, the error shrinking at order
+    0.5-0.7 toward an extrapolated 1.01. Bounds: about 0.8% either side of the measured 0.910 at 5 mm (as
+    tests/test_open_walls.py pins it; a 3% error in gravity moves Cv 1.4%), and of 0.940 at 2.5 mm."""
     from .scene.effects import Collider
 
     dx = 0.0025 if fine else 0.005
-    width, slot, plate, top = 0.2, 0.04, (0.06, 0.08), 0.20
+    width, slot, plate, top = 0.8, 0.04, (0.06, 0.08), 0.20
     half = (width - slot) / 2
     plates = [Collider("box", center=(x, sum(plate) / 2), size=(half, plate[1] - plate[0]), boundary="free_slip")
               for x in (half / 2, width - half / 2)]
@@ -128,7 +129,8 @@ def torricelli(work: Path, device: str, fine: bool = False) -> list[Row]:
     v_s = -np.gradient(surface, t)  # the surface's own speed enters Bernoulli
     w = (t >= 0.15 - 1e-9) & (t <= 0.25 + 1e-9)
     cv = math.sqrt(jet[w, 0].sum() / (jet[w, 1] + jet[w, 2] * v_s[w] ** 2).sum())
-    low, high = (-0.02, -0.005) if fine else (-0.045, -0.028)
+    low, high = (-0.067, -0.052) if fine else (-0.097, -0.083)  # about 0.8% of Cv either side of the measured
+    # (at 5 mm the benchmark's TESTED_CV, which tests/test_open_walls.py holds)
     return [Row(f"Torricelli: draining jet, {dx * 1000:g} mm cells", "Bernoulli, Cv = 1", f"Cv {cv:.4f}",
                 cv - 1.0, low, high)]
 

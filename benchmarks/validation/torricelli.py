@@ -1,6 +1,6 @@
 """A tank draining through a slot in its floor into open air: the jet's speed against Torricelli's.
 
-A 2D tank 0.2 m wide with water 0.12 m deep on a free-slip floor plate (0.06-0.08 m up, 2 cm thick)
+A 2D tank 0.8 m wide with water 0.12 m deep on a free-slip floor plate (0.06-0.08 m up, 2 cm thick)
 cut by a 4 cm slot; below the plate the jet falls through air and leaves through the domain's open
 floor. Along the free jet the pressure is zero, so Bernoulli from the free surface (height y_s,
 falling at v_s) gives every jet particle at height y the speed
@@ -14,7 +14,13 @@ checked against a reference: the plate is half as thick as the slot is wide, bet
 orifice (Kirchhoff's free-streamline slot, Cc = pi / (pi + 2) = 0.611) and a short tube (Cd near 0.8).
 Both are read over t = 0.15-0.25 s, after the jet has formed (Cv rises through 0.1-0.15 s).
 
-    python -m benchmarks.validation.torricelli               # cells 0.02, 0.01, 0.005, 0.0025 m (about 40 s)
+The tank is wide so that the drain is nearly steady, as Torricelli's law assumes: its surface falls
+at about 5 cm/s. In a tank 0.2 m wide (four times as fast) the slowing drain adds to the jet's speed
+(unsteady Bernoulli), and a jet particle read 4-6 cm under the plate left the slot under a head
+that has since fallen; Cv read 0.920 / 0.964 / 0.999 there at 10 / 5 / 2.5 mm and 1.024 at 1.25 mm,
+past the steady law, where this tank reads 0.867 / 0.910 / 0.940 and extrapolates to 1.00.
+
+    python -m benchmarks.validation.torricelli               # cells 0.02, 0.01, 0.005, 0.0025 m (about 2 min)
     python -m benchmarks.validation.torricelli --cells 0.02 0.01 0.005
     python -m benchmarks.validation.torricelli --quick       # cells 0.02, 0.01
 
@@ -33,13 +39,16 @@ import numpy as np
 from benchmarks import harness
 
 G = 9.81
-WIDTH, HEIGHT = 0.2, 0.24  # the domain, m
+WIDTH, HEIGHT = 0.8, 0.24  # the domain, m: wide, so that the drain is nearly steady (the docstring)
 FLOOR = (0.06, 0.08)  # the plate's bottom and top, m
 SLOT = 0.04  # m, centred
 WATER_TOP = 0.20  # m
 T_END, WINDOW = 0.25, (0.15, 0.25)  # s
 JET_BAND = (0.0, 0.02)  # m: the heights where the jet is read
 FPS = 100  # a sample every 0.01 s
+# Cv at 5 mm cells, measured 0.9099: about 0.8% either side (tests/test_open_walls.py, the report, and
+# warp_mpm_bubbles/validation_cases.py's quick case hold it; a 3% error in gravity reads 0.9238)
+TESTED_DX, TESTED_CV = 0.005, (0.903, 0.917)
 
 
 def tank_scene(dx: float, out_dir="."):

@@ -84,3 +84,36 @@ def test_the_verdicts(study):
     # (the report of `--resolutions 160` once raised after its 13-minute run)
     for limit in (None, 0.0):
         assert study.convergence([0.2416], [], limit=limit)["verdict"] == "-"
+
+
+def test_set_changes_a_solver_setting_and_refuses_what_a_scene_would(study, capsys, tmp_path):
+    # --set NAME=VALUE: typed as the settings expect, and passed to the scene of every run
+    settings = study.solver_settings(["volume_relaxation_time=0", "volume_correction_moves=velocities",
+                                      "particles_per_cell=9", "cg_tolerance=1e-6"])
+    assert settings == {"volume_relaxation_time": 0, "volume_correction_moves": "velocities",
+                        "particles_per_cell": 9, "cg_tolerance": 1e-6}
+    assert type(settings["particles_per_cell"]) is int
+    solver = study.scene(study.CASES["hysing_2d"], 10, str(tmp_path), settings=settings).validate().solver
+    assert (solver.volume_relaxation_time, solver.volume_correction_moves, solver.particles_per_cell) == (
+        0, "velocities", 9)
+    for pair, says in [("bogus=1", "'bogus' is not a [solver] setting"), ("cfl", "expected NAME=VALUE"),
+                       ("seed=3", "own flag: --seeds"), ("cfl=3", "[solver].cfl = 3"),
+                       ("volume_correction_moves=sideways", "expected one of 'velocities', 'positions'")]:
+        with pytest.raises(ValueError) as error:
+            study.solver_settings([pair])
+        assert says in str(error.value)
+    # without --label the runs would replace the study's own: refused before anything runs
+    assert study.main(["--cases", "hysing_2d", "--set", "cfl=0.25", "--out", "/nonexistent"]) == 2
+    assert "give --label too" in capsys.readouterr().err
+
+
+def test_a_study_of_one_grid_is_reported(study):
+    # `--resolutions 40` alone: no differences to judge, so the verdicts read "-" (it raised KeyError)
+    t = np.linspace(0.0, 3.0, 61)
+    series = [{"t": float(x), "centroid_y": float(centroid(x)), "particle_speed": 0.2, "roundness": 0.95,
+               "gas_region_ratio": 1.0, "voids": 0, "gaps": 0} for x in t]
+    run = {"case": "hysing_2d", "resolution": 40, "t_end": 3.0, "wall_s": 1.0, "steps": 420, "particles": 12800,
+           "series": series, "track": None}
+    text = study.markdown(study.report([run], "python -m benchmarks.validation.convergence --resolutions 40"))
+    row = next(line for line in text.splitlines() if line.startswith("| centroid_end |"))
+    assert "| - | - |" in row and f"{centroid(3.0):.4g}" in row

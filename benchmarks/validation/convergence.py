@@ -8,6 +8,7 @@ accuracy_vs_time.py against itself.
     python -m benchmarks.validation.convergence --report-only        # re-render from the saved runs
     python -m benchmarks.validation.convergence --device cuda:0 --cases adelsberger_3d --resolutions 18,27,40
     python -m benchmarks.validation.convergence --cases hysing_2d --resolutions 40 --quality preview,production,reference --seeds 0,1,2
+    python -m benchmarks.validation.convergence --cases hysing_2d --set volume_relaxation_time=0 --label no_correction
 
 Cases (docs/convergence.md explains the mapping):
 - hysing_2d: Hysing et al. 2009, test case 1: a 1 x 2 tank, no-slip top and bottom, free-slip sides,
@@ -30,6 +31,11 @@ is saved on its own (benchmarks/results/convergence/<device>_runs/<case>_<resolu
 when rerun), so cases and resolutions can be run separately and the report merges what is there.
 Writes benchmarks/results/convergence/<device>.{json,csv,md,png} (--quick: <device>_quick*).
 
+Other settings: --set NAME=VALUE (repeatable) changes a [solver] setting from the preset's in every
+run, e.g. `--set volume_relaxation_time=0` (no volume correction) or `--set
+volume_correction_moves=velocities`; with --label, so the runs are saved in
+<device>_<label>_runs/ and reported apart from the study's.
+
 Quality presets: --quality runs the cases at each preset as a scene's
 [solver].quality sets it (reference also refines the grid: `refine` cells per cell_size), --seeds
 at other particle seeds (the noise floor). The convergence tables take the production runs at seed
@@ -41,6 +47,7 @@ seed are saved as <case>_<resolution>_<quality>_s<seed>.json.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import datetime
 import json
 import math
@@ -58,6 +65,7 @@ from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSetting
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.core.timing import describe_device
 from warp_mpm_bubbles.diagnostics import field_shape, gap_cells, gas_fraction, void_cells
+from warp_mpm_bubbles.scene.checks import SceneError
 from warp_mpm_bubbles.scene.quality import PRESETS
 
 from benchmarks import harness
@@ -98,8 +106,10 @@ CASES = {c.key: c for c in [
 ]}
 
 
-def scene(case: Case, res: int, tmp: str, quality: str = "production", seed: int = 0) -> Scene:
-    settings = SolverSettings(quality=quality, seed=seed)
+def scene(case: Case, res: int, tmp: str, quality: str = "production", seed: int = 0,
+          settings: dict | None = None) -> Scene:
+    """The case's scene at one grid; `settings`: SolverSettings fields changed from the preset's (--set)."""
+    settings = SolverSettings(quality=quality, seed=seed, **(settings or {}))
     if case.key == "free_surface_2d":
         r = 0.01
         return Scene(domain=Domain(size=case.size, cell_size=r / res),
@@ -153,9 +163,10 @@ def tracker(sim: Simulation, gas_index: int, track: dict):
     return on_step
 
 
-def run_one(case: Case, res: int, t_end: float, device, quality: str = "production", seed: int = 0) -> dict:
+def run_one(case: Case, res: int, t_end: float, device, quality: str = "production", seed: int = 0,
+            settings: dict | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        sim = Simulation(scene(case, res, tmp, quality, seed), device)
+        sim = Simulation(scene(case, res, tmp, quality, seed, settings), device)
         gas_index = [m.is_gas for m in sim.scene.materials.values()].index(True)
         series = [sample(sim, gas_index)]
         track = {"t": [sim.time], "centroid_y": [series[0]["centroid_y"]], "particle_speed": [0.0], "cost_s": 0.0}
@@ -170,7 +181,7 @@ def run_one(case: Case, res: int, t_end: float, device, quality: str = "producti
             print(f"  {case.key} {res} {quality} s{seed}: t {s['t']:.3f} y {s['centroid_y']:.4f} v {s['particle_speed']:.4f} "
                   f"round {s['roundness']:.4f} voids {s['voids']} ({wall:.0f} s)", file=sys.stderr, flush=True)
         wall -= track.pop("cost_s")  # the solver's time only
-        return {"case": case.key, "resolution": res, "quality": quality, "seed": seed,
+        return {"case": case.key, "resolution": res, "quality": quality, "seed": seed, "settings": settings or {},
                 "refine": sim.scene.solver.refine, "t_end": t_end, "dx": sim.grid.dx,
                 "particles": sim.num_particles, "steps": sim.stats.steps, "wall_s": wall,
                 "device": describe_device(device), "series": series, "track": track,
@@ -393,7 +404,8 @@ def fmt(x, digits=4):
         f"{x:d}" if isinstance(x, int) else f"{x:.{digits}g}")
 
 
-VERDICT = {"yes": "yes", "barely": "barely", "no": "**no**", "exact": "exact (0)", "within spread": "within spread"}
+VERDICT = {"yes": "yes", "barely": "barely", "no": "**no**", "exact": "exact (0)", "within spread": "within spread",
+           "-": "-"}  # one level: nothing to compare yet
 
 
 def markdown(rep: dict) -> str:
@@ -462,6 +474,35 @@ def plot(runs: list[dict], path: Path):
     fig.savefig(path, dpi=110)
 
 
+def solver_settings(pairs: list[str]) -> dict:
+    """--set NAME=VALUE pairs as SolverSettings fields: whole numbers as int, other numbers as float,
+    the rest as text; a name that is not a field, or a value the settings refuse, raises ValueError."""
+    fields = {f.name for f in dataclasses.fields(SolverSettings)} - {"quality", "seed"}
+    out = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        name = name.strip()
+        if not sep or not text.strip():
+            raise ValueError(f"expected NAME=VALUE, e.g. volume_relaxation_time=0; got {pair!r}")
+        if name in ("quality", "seed"):  # their own flags
+            raise ValueError(f"{name} has its own flag: --{name if name == 'quality' else 'seeds'}")
+        if name not in fields:
+            raise ValueError(f"{name!r} is not a [solver] setting; choose from {', '.join(sorted(fields))}")
+        text = text.strip()
+        for kind in (int, float, str):
+            try:
+                out[name] = kind(text)
+                break
+            except ValueError:
+                continue
+    try:  # the checks a scene's settings get, on the smallest of the studies' scenes
+        with tempfile.TemporaryDirectory() as tmp:
+            scene(CASES["hysing_2d"], 4, tmp, settings=out).validate()
+    except SceneError as error:
+        raise ValueError(str(error).removeprefix("<python>: ")) from None
+    return out
+
+
 def main(argv=None) -> int:
     ap = harness.parser(__doc__, quick="smaller grids and a shorter t_end")
     ap.add_argument("--cases", default=",".join(CASES))
@@ -470,8 +511,20 @@ def main(argv=None) -> int:
     ap.add_argument("--quality", default="production",
                     help=f"comma list of quality presets to run ({', '.join(PRESETS)}; default production)")
     ap.add_argument("--seeds", default="0", help="comma list of particle seeds (default 0)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a [solver] setting changed from the preset's, e.g. volume_relaxation_time=0 (repeatable; "
+                         "needs --label, so the runs are saved apart from the study's)")
     ap.add_argument("--report-only", action="store_true", help="no runs: re-render from the saved ones")
     args = ap.parse_args(argv)
+    try:
+        settings = solver_settings(args.set)
+    except ValueError as error:
+        print(f"--set: {error}", file=sys.stderr)
+        return 2
+    if settings and not args.label:
+        print("--set: give --label too (e.g. --label no_correction), so that these runs are saved apart and do "
+              "not replace the study's", file=sys.stderr)
+        return 2
     wp.config.quiet = True  # older Warp; 1.19 reads log_level
     wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
     stem = harness.result_stem("convergence", args)
@@ -513,7 +566,7 @@ def main(argv=None) -> int:
         for res in levels:
             for quality in qualities:
                 for seed in seeds:
-                    r = run_one(case, res, t_end, wp.get_device(args.device), quality, seed)
+                    r = run_one(case, res, t_end, wp.get_device(args.device), quality, seed, settings)
                     r["command"], r["code"] = harness.command_line(), git_describe()
                     r["package"] = str(Path(warp_mpm_bubbles.__file__).resolve().parent.relative_to(ROOT))
                     (run_dir / run_file(key, res, quality, seed)).write_text(json.dumps(r, indent=1))

@@ -253,6 +253,29 @@ zero_solid_faces = line_kernel(zero_solid_faces_at)
 
 
 @wp.func
+def ask_volume_correction(step: StepParams, volume_rate: float, cells: CellPhases, splat: Splat, rows: PressureRows,
+                          enclosed_cells: wp.array3d(dtype=wp.int32), c: wp.vec3i, enclosed: int):
+    """The volume correction's part of cell c's row (docs/design.md, #volume-correction): what it adds
+    to the step's right-hand side. Where the correction moves positions and c is enclosed, it is
+    solved for on its own (rows.correction_rhs, core/volume_shift.py) and adds nothing: the flow's
+    pressure and velocity never carry it. Only enclosed cells shift: at a surface the solve's
+    pressure is what gas gives way to (#volume-shift)."""
+    dt = step.dt
+    shifted = int(0)
+    if step.volume_moves == VOLUME_MOVES_POSITIONS and enclosed != 0:
+        shifted = 1
+    inv_dx2 = 1.0 / (step.dx * step.dx)
+    target = correction_target(step.volume_fill, shifted, volume_rate, cells, splat, step.two_phase, c, step.dim,
+                               enclosed, inv_dx2, step.dx, enclosed_cells)
+    if shifted != 0:
+        rows.correction_rhs[c[0], c[1], c[2]] = target / dt
+        return 0.0
+    if step.two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
+        rows.target_div[c[0], c[1], c[2]] = target
+    return target / dt
+
+
+@wp.func
 def pressure_diagonal_and_rhs_at(
     step: StepParams,
     volume_rate: float,
@@ -321,18 +344,7 @@ def pressure_diagonal_and_rhs_at(
         if extra > 0.0:
             pinned = 1
     if two_phase == 0 or phase[i, j, k] == PHASE_LIQUID or (interface != INTERFACE_BASELINE and extra == 0.0):
-        # only enclosed cells shift: at a surface the solve's pressure is what gas gives way to (#volume-shift)
-        shifted = int(0)
-        if shift and enclosed != 0:
-            shifted = 1
-        target = correction_target(step.volume_fill, shifted, volume_rate, cells, splat, two_phase,
-                                   wp.vec3i(i, j, k), dim, enclosed, inv_dx2, dx, enclosed_cells)
-        if shifted != 0:  # solved for on its own: the flow's pressure and velocity never carry it
-            rows.correction_rhs[i, j, k] = target / dt
-        else:
-            b += target / dt
-            if two_phase != 0:  # the divergence asked of the liquid, which is not the gas's to take
-                rows.target_div[i, j, k] = target
+        b += ask_volume_correction(step, volume_rate, cells, splat, rows, enclosed_cells, wp.vec3i(i, j, k), enclosed)
     rows.diag[i, j, k] = d * inv_dx2 + extra
     rows.extra_diag[i, j, k] = extra
     rows.rhs[i, j, k] = b

@@ -27,6 +27,7 @@ from .kernel_args import (PlaneSums, PointPreconditioner, PressureOperator, plan
 from .launch import Recorded, Slabs, launch_key, record
 from .lines import Lines, line_end, line_first, make_lines, on_line
 from .multigrid import MultigridPreconditioner
+from .solves import SolveInfo
 from .threads import Parallel, line_slab_count
 
 wp.set_module_options({"enable_backward": False})
@@ -376,13 +377,6 @@ class PressureSystem:
         system = cls(arr(types.astype(np.int32), wp.int32), tuple(arr(w) for w in faces), arr(diag),
                      arr(np.where(fluid, extra_diag, 0.0).astype(np.float32)))
         return system, int(fluid.sum()), not pinned
-
-
-@dataclass
-class SolveInfo:
-    iterations: int
-    residual: float  # ||b - A x|| / ||b|| at exit
-    converged: bool
 
 
 class PressureSolver:

@@ -25,21 +25,20 @@ from __future__ import annotations
 import math
 from collections import Counter
 from contextlib import ExitStack
-from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
 from . import grid_kernels as gk
 from .kernel_args import cell_phases, face_field, face_pairs, particle_arrays, pressure_rows, splat, step_params
-from .volume_correction import volume_relaxation_rate
 from .active_box import ActiveRegion
 from .geometry import grid_geometry
 from .host_reads import HostReads
 from .host_state import Ledger
 from .grid import INTERFACE_SHARP, INTERFACES, PHASE_GAS, PHASE_LIQUID, RETIRED, WALL_OPEN, MacGrid
-from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_FILLS, VOLUME_MOVES
-from .pressure import PressureSolver, PressureSystem, SolveInfo
+from .volume_correction import VOLUME_FILL_SMOOTHED, VOLUME_FILLS, VOLUME_MOVES, volume_relaxation_rate
+from .pressure import PressureSolver, PressureSystem
+from .solves import SolverStats
 from .volume_shift import VolumeShift
 from .seeding import seed_particles
 from .context import StepContext
@@ -62,25 +61,6 @@ GAS_LAW_CODES = {"isothermal": GAS_ISOTHERMAL, "adiabatic": GAS_ADIABATIC}  # el
 # bubble split in two, tests/test_gas.py; two bubbles' merge, tests/test_hard_cases.py).
 SORT_EVERY = 0
 COMPACT_RETIRED = 0.25  # compact the arrays at a frame's end once this share of the particles is retired
-
-
-@dataclass
-class SolverStats:
-    steps: int = 0
-    cg_iterations: int = 0
-    cg_max_iterations: int = 0
-    cg_solves: int = 0
-    cg_unconverged: int = 0
-    cg_worst_residual: float = 0.0
-    dt_history: list[float] = field(default_factory=list)
-    limited_by: dict[str, int] = field(default_factory=dict)  # steps per limit name that set them ("frame": the frame's end)
-
-    def record(self, info: SolveInfo):
-        self.cg_solves += 1
-        self.cg_iterations += info.iterations
-        self.cg_max_iterations = max(self.cg_max_iterations, info.iterations)
-        self.cg_worst_residual = max(self.cg_worst_residual, info.residual)
-        self.cg_unconverged += 0 if info.converged else 1
 
 
 class SimulationError(RuntimeError):
@@ -487,9 +467,6 @@ class Simulation:
         self.extend(self.fields.vel, self.fields.valid)
 
     def _phase_g2p(self, dt: float, again: bool):
-        self._grid_to_particles(dt)
-
-    def _grid_to_particles(self, dt: float):
         f, p = self.fields, self.particles
         # The sharp interface's gas took its cells' volume change in before_g2p; the baseline (and
         # the liquid) follow the interpolated divergence.

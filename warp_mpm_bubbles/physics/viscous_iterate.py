@@ -35,7 +35,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..core.pressure import SolveInfo
+from ..core.solves import SolveInfo
 from .viscous_multigrid import FaceMultigrid, dot_rz, pcg_residual, unknowns_box
 from .viscous_pcg import (BLACK, OPERATOR, RED, RHS, add_into, guess_start, pcg_direction, pcg_restart, pcg_start,
                           pcg_step, pcg_update, sgs_sweep)

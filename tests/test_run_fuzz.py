@@ -495,6 +495,10 @@ def report(failures, tmp_path) -> str:
 # time off / 5 / 10 / 20 / 40 ms: fastest 2.5 / 3.1 / 4.2 / 2.1 / 1.6 m/s (off: against a bound of
 # 2.63); 2 ms: within the bound and 0.951: the injector's push crowds faster than tau relaxes, as in
 # FILL_TOLERANCE_INJECTING. CROWDED_FILL does not change it. Scene 565 itself is its reduced form.
+# Tried for all three (2026-12-08): a cell beside a wall reads 5/6 full when full (the B-spline's
+# share beyond the wall has no particles), so its band's 1.1 is a crowding of 1.32. Folding the
+# ghost layer's splat back into the cells beside the walls, so that they read 1, made all three
+# worse: 565 occupied 0.859 with a particle at 4.1 m/s, 780 0.802, 958 0.865 with 15.3 m/s. Not kept.
 # A quarter of the scenes read the smoothed fill ([solver].volume_fill, a draw of its own): over
 # 0-1199 no scene fails that did not before; 780 (smoothed) occupies 0.876, 958 (smoothed) 0.884.
 # A quarter moved positions ([solver].volume_correction_moves, a draw of its own) while the default

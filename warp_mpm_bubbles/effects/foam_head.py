@@ -502,13 +502,18 @@ class Head:
         if not len(columns):
             return
         surface = ctx.read_host(self.cells.surface)
-        geo, dx = ctx.geometry, ctx.grid.dx
+        geo, g, dx = ctx.geometry, ctx.grid, ctx.grid.dx
         axis, sign = geo.up_axis, geo.up_sign
         origin = np.array([geo.origin[0], geo.origin[1], geo.origin[2]], np.float64)
+        lo = origin[axis] + g.ghost[axis] * dx  # the domain's faces across the up axis
+        floor = lo if sign > 0 else -(lo + g.interior[axis] * dx)  # the lower one's elevation
         positions = []
         for col in map(tuple, columns):
-            if surface[col] <= 0.5 * NO_SURFACE:
-                continue  # no water below: the liquid stays owed
+            # No water below, or less than a quarter cell of it inside the domain (over an open
+            # floor the surface reads the splat in the air below, and can lie under the floor): the
+            # liquid stays owed.
+            if surface[col] <= 0.5 * NO_SURFACE or surface[col] - 0.25 * dx <= floor:
+                continue
             count = int(owed[col] // per)
             for _ in range(count):
                 n = self.state.water_made

@@ -503,7 +503,7 @@ def report(failures, tmp_path) -> str:
 # unchanged): with the band of 0.1 it mends 780 and 2188 (below) and turns 565's and 958's
 # compression into speeds past the bound (3.32, 15.2 m/s), but the resting head's floor pressure
 # reads +14.8 / +13.6% at 16 / 32 columns (+11.0 / +3.6% now) and the vortex loses more than the
-# transfers (tests/test_foam_head.py, test_volume_shift.py fail): the walls' noise, 0.077 of a full
+# transfers (tests/test_foam_head.py, test_volume_shift.py fail): the walls' noise, about 0.07 of a full
 # cell there, kicks past the band. A wall band of 0.3 keeps those tests but mends only 2188; moving
 # such cells by the shift (as enclosed ones) mends only 780 and the floor pressure reads -4.5% at 32.
 # Scenes 1200-3999 (2026-12-08, 2,800 not run before): 3247 failed and is mended (HARD_SCENES, a

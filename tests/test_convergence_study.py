@@ -117,3 +117,21 @@ def test_a_study_of_one_grid_is_reported(study):
     text = study.markdown(study.report([run], "python -m benchmarks.validation.convergence --resolutions 40"))
     row = next(line for line in text.splitlines() if line.startswith("| centroid_end |"))
     assert "| - | - |" in row and f"{centroid(3.0):.4g}" in row
+
+
+def test_set_reaches_the_runs_simulation(study, monkeypatch):
+    # run_one hands --set's settings to the scene it simulates (stopped as soon as it is built)
+    seen = {}
+
+    class Built(Exception):
+        pass
+
+    def simulation(scene, device):
+        seen["tau"], seen["moves"] = scene.solver.volume_relaxation_time, scene.solver.volume_correction_moves
+        raise Built
+
+    monkeypatch.setattr(study, "Simulation", simulation)
+    with pytest.raises(Built):
+        study.run_one(study.CASES["hysing_2d"], 10, 0.1, "cpu",
+                      settings={"volume_relaxation_time": 0, "volume_correction_moves": "velocities"})
+    assert seen == {"tau": 0, "moves": "velocities"}

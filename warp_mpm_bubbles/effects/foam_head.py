@@ -506,7 +506,7 @@ class Head:
         axis, sign = geo.up_axis, geo.up_sign
         origin = np.array([geo.origin[0], geo.origin[1], geo.origin[2]], np.float64)
         lo = origin[axis] + g.ghost[axis] * dx  # the domain's faces across the up axis
-        floor = lo if sign > 0 else -(lo + g.interior[axis] * dx)  # the lower one's elevation
+        floor = lo if sign > 0 else -(lo + g.interior[axis] * dx)  # the lower one's elevation (floor_elevation)
         positions = []
         for col in map(tuple, columns):
             # No water below, or less than a quarter cell of it inside the domain (over an open

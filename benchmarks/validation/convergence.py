@@ -64,6 +64,7 @@ import warp_mpm_bubbles
 from warp_mpm_bubbles import Box, Domain, Material, Output, Scene, SolverSettings, Sphere
 from warp_mpm_bubbles.core.simulation import Simulation
 from warp_mpm_bubbles.core.timing import describe_device
+from warp_mpm_bubbles.io.wedge import parse_value
 from warp_mpm_bubbles.diagnostics import field_shape, gap_cells, gas_fraction, void_cells
 from warp_mpm_bubbles.scene.checks import SceneError
 from warp_mpm_bubbles.scene.quality import PRESETS
@@ -475,8 +476,9 @@ def plot(runs: list[dict], path: Path):
 
 
 def solver_settings(pairs: list[str]) -> dict:
-    """--set NAME=VALUE pairs as SolverSettings fields: whole numbers as int, other numbers as float,
-    the rest as text; a name that is not a field, or a value the settings refuse, raises ValueError."""
+    """--set NAME=VALUE pairs as SolverSettings fields, each value read as `wedge --vary` reads one
+    (a TOML literal, a bare word as text); a name that is not a field, or a value the settings
+    refuse, raises ValueError."""
     fields = {f.name for f in dataclasses.fields(SolverSettings)} - {"quality", "seed"}
     out = {}
     for pair in pairs:
@@ -488,13 +490,7 @@ def solver_settings(pairs: list[str]) -> dict:
             raise ValueError(f"{name} has its own flag: --{name if name == 'quality' else 'seeds'}")
         if name not in fields:
             raise ValueError(f"{name!r} is not a [solver] setting; choose from {', '.join(sorted(fields))}")
-        text = text.strip()
-        for kind in (int, float, str):
-            try:
-                out[name] = kind(text)
-                break
-            except ValueError:
-                continue
+        out[name] = parse_value(text.strip())
     try:  # the checks a scene's settings get, on the smallest of the studies' scenes
         with tempfile.TemporaryDirectory() as tmp:
             scene(CASES["hysing_2d"], 4, tmp, settings=out).validate()

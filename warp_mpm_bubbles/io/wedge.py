@@ -93,7 +93,7 @@ def parse_vary(text: str) -> tuple[str, list]:
     if not re.fullmatch(r"[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*", key):
         raise WedgeError(f"--vary {text!r}: {key!r} is not a dotted scene key like materials.water.surface_tension",
                          "--vary", text)
-    return key, [_parse_value(v) for v in _split_top(rest)]
+    return key, [parse_value(v) for v in _split_top(rest)]
 
 
 def _split_top(text: str) -> list[str]:
@@ -116,7 +116,9 @@ def _split_top(text: str) -> list[str]:
     return [p.strip() for p in parts + [cur]]
 
 
-def _parse_value(s: str):
+def parse_value(s: str):
+    """A value given on a command line as a TOML literal (a number, true/false, "a string", [a list]);
+    a bare word is a string. `--vary`'s values, and the convergence study's `--set`."""
     try:
         return tomllib.loads(f"v = {s}")["v"]
     except tomllib.TOMLDecodeError:

@@ -502,11 +502,10 @@ class Head:
         if not len(columns):
             return
         surface = ctx.read_host(self.cells.surface)
-        geo, g, dx = ctx.geometry, ctx.grid, ctx.grid.dx
+        geo, dx = ctx.geometry, ctx.grid.dx
         axis, sign = geo.up_axis, geo.up_sign
         origin = np.array([geo.origin[0], geo.origin[1], geo.origin[2]], np.float64)
-        lo = origin[axis] + g.ghost[axis] * dx  # the domain's faces across the up axis
-        floor = lo if sign > 0 else -(lo + g.interior[axis] * dx)  # the lower one's elevation (floor_elevation)
+        floor = 0.0 if sign > 0 else -ctx.grid.domain_size[axis]  # the domain's lower face, as an elevation
         positions = []
         for col in map(tuple, columns):
             # No water below, or less than a quarter cell of it inside the domain (over an open
